@@ -1,0 +1,316 @@
+"""The trajectory file, format `fignetctl.trajectories`, version 1 (see docs/formats.md).
+
+One HDF5 file holds meshes (object frame, origin at the centre of mass) and any number of
+trajectories of objects that use them. The same format stores a dataset, a scene
+(2 frames: t-1 and t) and a rollout. Units: metres, seconds, kilograms; z is up.
+
+World vertex = R(q) · (scale · v) + p, with q = (w, x, y, z) object-to-world.
+
+`write_trajectories` is atomic; `read_trajectories` validates every required field and
+raises `FormatError` with a message naming the file, the trajectory and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from fignetctl.core.atomic import atomic_path
+from fignetctl.errors import FormatError
+
+FORMAT = "fignetctl.trajectories"
+FORMAT_VERSION = 1
+SUPPORTED_VERSIONS = (1,)
+QUATERNION_TOLERANCE = 1e-3
+
+
+@dataclasses.dataclass
+class Mesh:
+    """A triangle mesh in its object frame.
+
+    vertices : (V, 3) float32, origin at the centre of mass, unscaled
+    faces : (F, 3) int32, counter-clockwise seen from outside
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+@dataclasses.dataclass
+class Trajectory:
+    """O objects over T frames.
+
+    mesh_names : (O,) str
+    scales : (O,) float32
+    positions : (T, O, 3) float32
+    quaternions : (T, O, 4) float32, w x y z
+    static : (O,) bool, True for objects moved from outside (floor, environment)
+    mass, friction, restitution : (O,) float32
+    extras : optional further (name -> array) datasets, kept on a round trip
+    """
+
+    mesh_names: np.ndarray
+    scales: np.ndarray
+    positions: np.ndarray
+    quaternions: np.ndarray
+    static: np.ndarray
+    mass: np.ndarray
+    friction: np.ndarray
+    restitution: np.ndarray
+    extras: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def num_objects(self) -> int:
+        return int(self.positions.shape[1])
+
+    def frames(self, start: int, stop: int) -> "Trajectory":
+        """The same objects restricted to frames [start, stop)."""
+        return dataclasses.replace(
+            self,
+            positions=self.positions[start:stop],
+            quaternions=self.quaternions[start:stop],
+            extras={},
+        )
+
+
+@dataclasses.dataclass
+class TrajectoryFile:
+    """Everything in one trajectory file.
+
+    dt : seconds between frames
+    gravity : (3,) m/s²
+    meshes : mesh name -> Mesh
+    trajectories : trajectory id -> Trajectory (ids are kept in insertion order)
+    attrs : optional further root attributes (source, seed, config, ...)
+    """
+
+    dt: float
+    gravity: np.ndarray
+    meshes: dict
+    trajectories: dict
+    attrs: dict = dataclasses.field(default_factory=dict)
+
+
+# Required per-object fields: name -> (dtype kind check, trailing shape, per-frame?)
+_OBJECT_FIELDS = {
+    "scales": ("f", ()),
+    "static": ("b", ()),
+    "mass": ("f", ()),
+    "friction": ("f", ()),
+    "restitution": ("f", ()),
+}
+_FRAME_FIELDS = {"positions": 3, "quaternions": 4}
+
+
+def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gzip") -> Path:
+    """Validate `data` and write it to `path` atomically (temporary file, then rename)."""
+    import h5py
+
+    path = Path(path)
+    _validate(data, str(path))
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = FORMAT
+            f.attrs["format_version"] = FORMAT_VERSION
+            f.attrs["dt"] = float(data.dt)
+            f.attrs["gravity"] = np.asarray(data.gravity, np.float64)
+            for key, value in data.attrs.items():
+                f.attrs[key] = value
+            meshes = f.create_group("meshes")
+            for name, mesh in data.meshes.items():
+                group = meshes.create_group(name)
+                group.create_dataset("vertices", data=np.asarray(mesh.vertices, np.float32))
+                group.create_dataset("faces", data=np.asarray(mesh.faces, np.int32))
+            trajectories = f.create_group("trajectories")
+            for key, trajectory in data.trajectories.items():
+                _write_one(trajectories.create_group(str(key)), trajectory, compression)
+    return path
+
+
+def _write_one(group, trajectory: Trajectory, compression) -> None:
+    import h5py
+
+    names = [str(n) for n in trajectory.mesh_names]
+    group.create_dataset("mesh_names", data=names, dtype=h5py.string_dtype("utf-8"))
+    for field in _FRAME_FIELDS:
+        value = np.asarray(getattr(trajectory, field), np.float32)
+        group.create_dataset(field, data=value, compression=compression)
+    for field, (kind, _) in _OBJECT_FIELDS.items():
+        dtype = bool if kind == "b" else np.float32
+        group.create_dataset(field, data=np.asarray(getattr(trajectory, field), dtype))
+    for field, value in trajectory.extras.items():
+        group.create_dataset(field, data=value)
+
+
+def read_trajectories(path, trajectory_ids=None) -> TrajectoryFile:
+    """Read and validate a trajectory file; optionally only the listed trajectory ids.
+
+    Raises FormatError naming the file, the trajectory and the field for anything that
+    does not follow the format (missing fields, wrong shapes or dtypes, non-unit
+    quaternions, faces out of range, non-finite numbers, unknown format versions).
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such file")
+    try:
+        with h5py.File(path, "r") as f:
+            data = _read_open_file(f, str(path), trajectory_ids)
+    except FormatError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as error:
+        raise FormatError(f"{path}: not a readable HDF5 trajectory file ({error})") from None
+    _validate(data, str(path))
+    return data
+
+
+def _read_open_file(f, where: str, trajectory_ids) -> TrajectoryFile:
+    _check_header(f, where)
+    meshes = {name: _read_mesh(f["meshes"][name], f"{where}: mesh {name!r}") for name in f["meshes"]}
+    if "trajectories" not in f:
+        raise FormatError(f"{where}: missing group 'trajectories'")
+    group = f["trajectories"]
+    ids = list(group.keys()) if trajectory_ids is None else [str(i) for i in trajectory_ids]
+    trajectories = {}
+    for key in ids:
+        if key not in group:
+            raise FormatError(f"{where}: no trajectory {key!r} (the file has {len(group)})")
+        trajectories[key] = _read_one(group[key], f"{where}: trajectory {key!r}")
+    known = {"format", "format_version", "dt", "gravity"}
+    attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in known}
+    return TrajectoryFile(
+        dt=float(f.attrs["dt"]),
+        gravity=np.asarray(f.attrs["gravity"], np.float64).reshape(-1),
+        meshes=meshes,
+        trajectories=trajectories,
+        attrs=attrs,
+    )
+
+
+def _check_header(f, where: str) -> None:
+    fmt = _plain(f.attrs.get("format", None))
+    if fmt != FORMAT:
+        raise FormatError(f"{where}: attribute 'format' is {fmt!r}, expected {FORMAT!r}")
+    version = f.attrs.get("format_version", None)
+    if version is None or int(version) not in SUPPORTED_VERSIONS:
+        raise FormatError(
+            f"{where}: format_version {version!r} is not supported (this fignetctl reads "
+            f"{', '.join(map(str, SUPPORTED_VERSIONS))}); upgrade fignetctl or convert the file"
+        )
+    for attr in ("dt", "gravity"):
+        if attr not in f.attrs:
+            raise FormatError(f"{where}: missing root attribute {attr!r}")
+    if "meshes" not in f:
+        raise FormatError(f"{where}: missing group 'meshes'")
+
+
+def _read_mesh(group, where: str) -> Mesh:
+    for field in ("vertices", "faces"):
+        if field not in group:
+            raise FormatError(f"{where}: missing field {field!r}")
+    return Mesh(vertices=group["vertices"][()], faces=group["faces"][()])
+
+
+def _read_one(group, where: str) -> Trajectory:
+    required = ["mesh_names", *_FRAME_FIELDS, *_OBJECT_FIELDS]
+    for field in required:
+        if field not in group:
+            raise FormatError(f"{where}: missing field {field!r}")
+    names = np.array([_plain(n) for n in group["mesh_names"][()]], dtype=object)
+    values = {field: group[field][()] for field in required[1:]}
+    extras = {k: group[k][()] for k in group.keys() if k not in required}
+    return Trajectory(mesh_names=names, extras=extras, **values)
+
+
+def _plain(value):
+    """h5py gives bytes or numpy scalars for attributes; make them plain Python."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8")
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _validate(data: TrajectoryFile, where: str) -> None:
+    if not (np.isfinite(data.dt) and data.dt > 0):
+        raise FormatError(f"{where}: 'dt' must be a positive number of seconds, got {data.dt}")
+    gravity = np.asarray(data.gravity)
+    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+        raise FormatError(f"{where}: 'gravity' must be 3 finite numbers, got {gravity.tolist()}")
+    for name, mesh in data.meshes.items():
+        _validate_mesh(mesh, f"{where}: mesh {name!r}")
+    if not data.trajectories:
+        raise FormatError(f"{where}: the file holds no trajectories")
+    for key, trajectory in data.trajectories.items():
+        _validate_trajectory(trajectory, data.meshes, f"{where}: trajectory {key!r}")
+
+
+def _validate_mesh(mesh: Mesh, where: str) -> None:
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.dtype.kind != "f":
+        raise FormatError(f"{where}: field 'vertices' must be (V, 3) float, got {vertices.shape} {vertices.dtype}")
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu":
+        raise FormatError(f"{where}: field 'faces' must be (F, 3) int, got {faces.shape} {faces.dtype}")
+    if len(faces) == 0:
+        raise FormatError(f"{where}: field 'faces' is empty")
+    if not np.all(np.isfinite(vertices)):
+        raise FormatError(f"{where}: field 'vertices' holds non-finite numbers")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise FormatError(
+            f"{where}: field 'faces' refers to vertex {int(faces.max()) if faces.max() >= len(vertices) else int(faces.min())}, "
+            f"but the mesh has {len(vertices)} vertices"
+        )
+
+
+def _validate_trajectory(t: Trajectory, meshes: dict, where: str) -> None:
+    positions, quaternions = np.asarray(t.positions), np.asarray(t.quaternions)
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[0] < 1:
+        raise FormatError(f"{where}: field 'positions' must be (T, O, 3), got {positions.shape}")
+    frames, objects = positions.shape[:2]
+    if quaternions.shape != (frames, objects, 4):
+        raise FormatError(f"{where}: field 'quaternions' must be {(frames, objects, 4)}, got {quaternions.shape}")
+    for field, value in (("positions", positions), ("quaternions", quaternions)):
+        if value.dtype.kind != "f":
+            raise FormatError(f"{where}: field {field!r} must be float, got {value.dtype}")
+        bad = ~np.isfinite(value)
+        if bad.any():
+            frame, obj = np.argwhere(bad)[0][:2]
+            raise FormatError(f"{where}: field {field!r} is not finite at frame {frame}, object {obj}")
+    norms = np.linalg.norm(quaternions.astype(np.float64), axis=-1)
+    off = np.abs(norms - 1.0) > QUATERNION_TOLERANCE
+    if off.any():
+        frame, obj = np.argwhere(off)[0]
+        raise FormatError(
+            f"{where}: field 'quaternions' is not a unit quaternion at frame {frame}, object {obj} "
+            f"(norm {norms[frame, obj]:.6f})"
+        )
+    _validate_objects(t, meshes, objects, where)
+
+
+def _validate_objects(t: Trajectory, meshes: dict, objects: int, where: str) -> None:
+    names = np.asarray(t.mesh_names)
+    if names.shape != (objects,):
+        raise FormatError(f"{where}: field 'mesh_names' must be ({objects},), got {names.shape}")
+    missing = sorted({str(n) for n in names} - set(meshes))
+    if missing:
+        raise FormatError(f"{where}: field 'mesh_names' names meshes not in /meshes: {', '.join(missing)}")
+    for field, (kind, _) in _OBJECT_FIELDS.items():
+        value = np.asarray(getattr(t, field))
+        if value.shape != (objects,):
+            raise FormatError(f"{where}: field {field!r} must be ({objects},), got {value.shape}")
+        if kind == "f" and (value.dtype.kind not in "fiu" or not np.all(np.isfinite(value))):
+            raise FormatError(f"{where}: field {field!r} must hold finite numbers")
+        if kind == "b" and value.dtype.kind not in "biu":
+            raise FormatError(f"{where}: field {field!r} must be boolean, got {value.dtype}")
+    if np.any(np.asarray(t.scales) <= 0):
+        raise FormatError(f"{where}: field 'scales' must be positive")
+    for field in ("mass", "friction", "restitution"):
+        if np.any(np.asarray(getattr(t, field)) < 0):
+            raise FormatError(f"{where}: field {field!r} must not be negative")

@@ -1,0 +1,13 @@
+"""The one exception type the library raises for problems a user can fix.
+
+Commands never catch it themselves: `fignetctl.cli` turns it into a one-line
+click error, so bad input never ends in a traceback.
+"""
+
+
+class FignetError(Exception):
+    """A problem with the user's input or environment, described in one sentence."""
+
+
+class FormatError(FignetError):
+    """A file that does not follow its documented format."""

@@ -1,0 +1,220 @@
+"""The encode–process–decode graph network of FIGNet / FIGNet*, on already-normalised graphs.
+
+Encode: one MLP for the nodes and one per edge set turn features into latents.
+Process: `message_passing_steps` blocks with unshared weights (as in MeshGraphNets and FIGNet).
+Each block first updates every edge set from the old node latents, then every node from the sum
+of each edge set's messages into it, the sums concatenated in edge-set-name order:
+
+    update_e  = MLP_e([edge latent, sender latent(s), receiver latent(s)])   (then LayerNorm)
+    update_v  = MLP_v([node latent, Σ_in update_e for each edge set])         (then LayerNorm)
+    edge latent += update_e;  node latent += update_v
+
+The message an edge sends is its update (before the residual sum), as in MeshGraphNets.
+Decode: an MLP without LayerNorm from each node latent to `output_size` numbers (the normalised
+per-node acceleration).
+
+Face–face hyper-edges (FIGNet): the edge latent has three parts of `latent_size`, part k
+belonging to receiver vertex k (vertex order is canonical, set by the graph builder). One MLP
+updates all three parts together from [edge latent (3L), the three sender vertex latents (3L),
+the three receiver vertex latents (3L)], so part k is updated with sender vertex k and receiver
+vertex k (and sees the rest of both faces); each part is layer-normalised on its own, added to
+its part of the edge latent, and summed into receiver vertex k only. The message MLP is
+therefore the edge-update MLP, with output 3·L, as for ordinary edges; a separate message MLP
+would add a second MLP per block for no information the first lacks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from torch import nn
+
+from fignetctl.core.model.graph import (
+    VERTICES_PER_FACE,
+    EdgeSet,
+    GraphSignature,
+    MultiGraph,
+    graph_signature,
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes of the encode–process–decode network (defaults: the FIGNet / FIGNet* paper)."""
+
+    latent_size: int = 128
+    """Width of every node latent and edge latent (a face–face edge latent holds three)."""
+    mlp_hidden_layers: int = 2
+    """Hidden layers in every MLP (encoders, edge and node updates, decoder)."""
+    mlp_hidden_size: int = 128
+    """Width of every hidden layer."""
+    message_passing_steps: int = 10
+    """Processor blocks, each with its own weights."""
+    output_size: int = 3
+    """Numbers decoded per node: the normalised acceleration."""
+
+
+PRESETS = {
+    "paper": NetworkConfig(),
+    "small": NetworkConfig(latent_size=64, mlp_hidden_size=64, message_passing_steps=5),
+    "tiny": NetworkConfig(latent_size=32, mlp_hidden_size=32, message_passing_steps=2),
+}
+
+
+def build_mlp(
+    input_size: int, hidden_size: int, hidden_layers: int, output_size: int
+) -> nn.Sequential:
+    """Linear–ReLU hidden layers, then a linear output layer."""
+    layers: list[nn.Module] = []
+    layer_input_size = input_size
+    for _ in range(hidden_layers):
+        layers += [nn.Linear(layer_input_size, hidden_size), nn.ReLU()]
+        layer_input_size = hidden_size
+    layers.append(nn.Linear(layer_input_size, output_size))
+    return nn.Sequential(*layers)
+
+
+class PartwiseLayerNorm(nn.Module):
+    """LayerNorm over each of `parts` consecutive chunks of `size`: (..., parts·size) -> same."""
+
+    def __init__(self, parts: int, size: int):
+        super().__init__()
+        self.parts = parts
+        self.size = size
+        self.layer_norm = nn.LayerNorm(size)
+
+    def forward(self, latents: torch.Tensor) -> torch.Tensor:
+        chunked = latents.reshape(*latents.shape[:-1], self.parts, self.size)
+        return self.layer_norm(chunked).reshape(latents.shape)
+
+
+def build_mlp_with_layer_norm(
+    input_size: int, output_parts: int, config: NetworkConfig
+) -> nn.Sequential:
+    """An MLP to `output_parts` latents of config.latent_size, each layer-normalised."""
+    mlp = build_mlp(
+        input_size,
+        config.mlp_hidden_size,
+        config.mlp_hidden_layers,
+        output_parts * config.latent_size,
+    )
+    return nn.Sequential(mlp, PartwiseLayerNorm(output_parts, config.latent_size))
+
+
+def latent_parts(signature: GraphSignature, edge_set_name: str) -> int:
+    """How many latents of latent_size one edge of this set carries: 3 for face–face, else 1."""
+    return VERTICES_PER_FACE if edge_set_name in signature.hyper_edge_set_names else 1
+
+
+def sum_messages_into_receivers(
+    messages: torch.Tensor, receivers: torch.Tensor, num_nodes: int
+) -> torch.Tensor:
+    """Sum messages into their receiver nodes; nodes that receive nothing get zeros.
+
+    messages : (E, L) with receivers (E,), or (E, 3, L) with receivers (E, 3): message
+        [e, k] goes to node receivers[e, k]
+    returns : (num_nodes, L); the size is given, never inferred from the largest index
+    """
+    latent_size = messages.shape[-1]
+    summed = messages.new_zeros(num_nodes, latent_size)
+    return summed.index_add_(0, receivers.reshape(-1), messages.reshape(-1, latent_size))
+
+
+def edge_update_inputs(
+    edge_latents: torch.Tensor, node_latents: torch.Tensor, edge_set: EdgeSet
+) -> torch.Tensor:
+    """[edge latent, sender latent(s), receiver latent(s)]: (E, 3L), or (E, 9L) for face–face."""
+    sender_latents = node_latents[edge_set.senders].flatten(1)
+    receiver_latents = node_latents[edge_set.receivers].flatten(1)
+    return torch.cat([edge_latents, sender_latents, receiver_latents], dim=-1)
+
+
+class GraphNetBlock(nn.Module):
+    """One message-passing step: edge updates, then node update, both residual."""
+
+    def __init__(self, config: NetworkConfig, signature: GraphSignature):
+        super().__init__()
+        latent_size = config.latent_size
+        self.latent_size = latent_size
+        self.edge_updates = nn.ModuleDict()
+        for name in signature.edge_set_names:
+            parts = latent_parts(signature, name)
+            self.edge_updates[name] = build_mlp_with_layer_norm(
+                3 * parts * latent_size, parts, config
+            )
+        node_input_size = latent_size * (1 + len(signature.edge_set_names))
+        self.node_update = build_mlp_with_layer_norm(node_input_size, 1, config)
+
+    def forward(
+        self, node_latents: torch.Tensor, edge_latents: dict[str, torch.Tensor], graph: MultiGraph
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """node_latents : (N, L); edge_latents : name -> (E, L) or (E, 3L). Returns both updated."""
+        new_edge_latents = {}
+        summed_messages = []
+        for name, edge_update in self.edge_updates.items():
+            edge_set = graph.edge_sets[name]
+            update = edge_update(edge_update_inputs(edge_latents[name], node_latents, edge_set))
+            new_edge_latents[name] = edge_latents[name] + update
+            messages = update.reshape(*edge_set.receivers.shape, self.latent_size)
+            summed_messages.append(
+                sum_messages_into_receivers(messages, edge_set.receivers, graph.num_nodes)
+            )
+        node_update = self.node_update(torch.cat([node_latents, *summed_messages], dim=-1))
+        return node_latents + node_update, new_edge_latents
+
+
+class EncodeProcessDecode(nn.Module):
+    """Normalised graph -> per-node output (N, config.output_size).
+
+    Built from a `GraphSignature` (feature widths and hyper-edge sets), so it has weights only
+    for the edge sets it will see: a FIGNet* network has no node_node weights at all. Use
+    `EncodeProcessDecode.for_graph(config, first_graph)` to take the widths from a graph.
+    """
+
+    def __init__(self, config: NetworkConfig, signature: GraphSignature):
+        super().__init__()
+        self.config = config
+        self.signature = signature
+        self.node_encoder = build_mlp_with_layer_norm(signature.node_feature_size, 1, config)
+        self.edge_encoders = nn.ModuleDict()
+        for name, feature_size in signature.edge_feature_sizes.items():
+            self.edge_encoders[name] = build_mlp_with_layer_norm(
+                feature_size, latent_parts(signature, name), config
+            )
+        self.processor = nn.ModuleList(
+            GraphNetBlock(config, signature) for _ in range(config.message_passing_steps)
+        )
+        self.decoder = build_mlp(
+            config.latent_size, config.mlp_hidden_size, config.mlp_hidden_layers, config.output_size
+        )
+
+    @classmethod
+    def for_graph(cls, config: NetworkConfig, graph: MultiGraph) -> EncodeProcessDecode:
+        return cls(config, graph_signature(graph))
+
+    def forward(self, graph: MultiGraph) -> torch.Tensor:
+        """graph : normalised MultiGraph matching self.signature. Returns (N, output_size)."""
+        check_graph_matches_signature(graph, self.signature)
+        node_latents = self.node_encoder(graph.node_features)
+        edge_latents = {
+            name: encoder(graph.edge_sets[name].features)
+            for name, encoder in self.edge_encoders.items()
+        }
+        for block in self.processor:
+            node_latents, edge_latents = block(node_latents, edge_latents, graph)
+        return self.decoder(node_latents)
+
+
+def check_graph_matches_signature(graph: MultiGraph, signature: GraphSignature) -> None:
+    """Raise ValueError when a graph's edge sets or feature widths are not the network's."""
+    found = graph_signature(graph)
+    if set(found.edge_set_names) != set(signature.edge_set_names):
+        raise ValueError(
+            f"the network was built for edge sets {list(signature.edge_set_names)},"
+            f" the graph has {list(found.edge_set_names)}"
+        )
+    if found != signature:
+        raise ValueError(
+            f"graph features {found.as_dict()} differ from the network's {signature.as_dict()}"
+        )

@@ -1,0 +1,45 @@
+"""Tiny synthetic data shared by the tests, made in the test (no downloads)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+INDEPENDENT_FIXTURE = SHARED / "fixtures" / "independent-movi-b-v1.h5"
+
+
+def box_drop_file(frames=3, dt=1 / 60):
+    """A unit box falling freely above a static 2-triangle floor, as a TrajectoryFile."""
+    import trimesh
+
+    from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
+
+    box = trimesh.creation.box()
+    floor_vertices = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], np.float32)
+    floor_faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    times = np.arange(frames) * dt
+    positions = np.zeros((frames, 2, 3), np.float32)
+    positions[:, 1, 2] = 2.0 - 0.5 * 10.0 * times**2
+    quaternions = np.zeros((frames, 2, 4), np.float32)
+    quaternions[..., 0] = 1.0
+    trajectory = Trajectory(
+        mesh_names=np.array(["floor", "box"], dtype=object),
+        scales=np.array([1.0, 1.0], np.float32),
+        positions=positions,
+        quaternions=quaternions,
+        static=np.array([True, False]),
+        mass=np.array([0.0, 1.0], np.float32),
+        friction=np.array([0.3, 0.5], np.float32),
+        restitution=np.array([0.5, 0.5], np.float32),
+    )
+    meshes = {
+        "floor": Mesh(floor_vertices, floor_faces),
+        "box": Mesh(np.asarray(box.vertices, np.float32), np.asarray(box.faces, np.int32)),
+    }
+    return TrajectoryFile(dt=dt, gravity=np.array([0, 0, -10.0]), meshes=meshes, trajectories={"00000": trajectory})
+
+
+@pytest.fixture
+def box_drop():
+    return box_drop_file()

@@ -18,6 +18,9 @@ from fignetctl.errors import FignetError
 COMMANDS = {
     "make-dataset": "make_dataset:make_dataset",
     "show": "show:show",
+    "train": "train:train",
+    "rollout": "rollout:rollout",
+    "evaluate": "evaluate:evaluate",
 }
 
 log = logging.getLogger("fignetctl")
@@ -54,6 +57,9 @@ class LazyGroup(click.Group):
 _SUMMARIES = {
     "make-dataset": "Ground-truth trajectories from PyBullet (MOVi-B/C presets).",
     "show": "Summarise a trajectory file; log it to rerun or render an mp4.",
+    "train": "Train FIGNet* or FIGNet on a trajectory file (resumable).",
+    "rollout": "Simulate a scene forward with a learned model.",
+    "evaluate": "Paper metrics of a model against ground truth, with baselines.",
 }
 
 

@@ -9,8 +9,9 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 INDEPENDENT_FIXTURE = SHARED / "fixtures" / "independent-movi-b-v1.h5"
 
 
-def box_drop_file(frames=3, dt=1 / 60):
-    """A unit box falling freely above a static 2-triangle floor, as a TrajectoryFile."""
+def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
+    """A unit box falling freely and spinning (rad/s about a tilted axis) above a static
+    2-triangle floor, as a TrajectoryFile."""
     import trimesh
 
     from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
@@ -20,9 +21,13 @@ def box_drop_file(frames=3, dt=1 / 60):
     floor_faces = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
     times = np.arange(frames) * dt
     positions = np.zeros((frames, 2, 3), np.float32)
-    positions[:, 1, 2] = 2.0 - 0.5 * 10.0 * times**2
+    positions[:, 1, 2] = height - 0.5 * 10.0 * times**2
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    half_angles = 0.5 * spin * times
     quaternions = np.zeros((frames, 2, 4), np.float32)
-    quaternions[..., 0] = 1.0
+    quaternions[:, 0, 0] = 1.0
+    quaternions[:, 1, 0] = np.cos(half_angles)
+    quaternions[:, 1, 1:] = np.sin(half_angles)[:, None] * axis
     trajectory = Trajectory(
         mesh_names=np.array(["floor", "box"], dtype=object),
         scales=np.array([1.0, 1.0], np.float32),

@@ -1,0 +1,87 @@
+"""Model files (`model.pt`): weights, normalisers, settings, and optionally training state.
+
+Layout of the torch file (loaded with `weights_only=True`, so nothing is unpickled but
+tensors and plain values):
+
+    format="fignetctl.model", format_version=1, fignetctl_version, simulator_config (json),
+    model (state_dict), training_state (optional: step, optimizer, random states, history,
+    training_config json, data_hash)
+
+Writes are atomic. A file that is not a fignetctl model, a newer format, or weights that do
+not fit the stored settings raise FormatError with what to do.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import torch
+
+from fignetctl import __version__
+from fignetctl.core.atomic import atomic_path
+from fignetctl.errors import FormatError
+
+FORMAT = "fignetctl.model"
+FORMAT_VERSION = 1
+BUNDLED = {
+    "fignet-star-movi-b": "fignet-star-movi-b.pt",
+    "fignet-movi-b": "fignet-movi-b.pt",
+}
+
+
+def bundled_model_path(name="fignet-star-movi-b") -> Path:
+    """The path of a checkpoint shipped inside the package."""
+    return Path(str(resources.files("fignetctl") / "assets" / "models" / BUNDLED[name]))
+
+
+def save_checkpoint(path, simulator, training_state=None, extra=None) -> Path:
+    """Write a model file atomically; `training_state` makes it resumable."""
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fignetctl_version": __version__,
+        "simulator_config": simulator.config.to_json(),
+        "model": {k: v.detach().cpu() for k, v in simulator.state_dict().items()},
+        **(extra or {}),
+    }
+    if training_state is not None:
+        payload["training_state"] = training_state
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return Path(path)
+
+
+def read_checkpoint_payload(path) -> dict:
+    """The raw, checked dictionary of a model file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such model file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for corrupt or foreign files
+        raise FormatError(f"{path}: not a readable fignetctl model file ({type(error).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise FormatError(f"{path}: not a fignetctl model file (no format={FORMAT!r})")
+    if payload.get("format_version") != FORMAT_VERSION:
+        raise FormatError(
+            f"{path}: model format_version {payload.get('format_version')!r} is not supported "
+            f"(this fignetctl reads {FORMAT_VERSION}); upgrade fignetctl"
+        )
+    return payload
+
+
+def load_checkpoint(path, with_training_state=False, device="cpu"):
+    """Model file -> LearnedSimulator (eval mode), and its training state when asked."""
+    from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+
+    payload = read_checkpoint_payload(path)
+    try:
+        simulator = LearnedSimulator(SimulatorConfig.from_json(payload["simulator_config"]))
+        simulator.load_state_dict(payload["model"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
+    simulator.to(device).eval()
+    if with_training_state:
+        return simulator, payload.get("training_state")
+    return simulator

@@ -1,0 +1,162 @@
+"""The paper's metrics for rollouts against ground truth, and two baselines to compare with.
+
+Translation error: RMSE over dynamic objects of |p_pred − p_gt| at a horizon (metres).
+Rotation error: mean over dynamic objects of the angle of q_gt⁻¹ · q_pred (degrees).
+Horizons: 50 rollout steps (the paper) and a fixed 2 seconds (so datasets at different frame
+rates compare); a trajectory too short for a horizon is left out of that horizon.
+
+Baselines (what learning buys):
+- `stand_still`: every object keeps its pose of frame 1;
+- `constant_velocity`: every object keeps its last velocity and spin, gains gravity, and stops
+  when its lowest vertex reaches the floor height (the lowest static vertex) — no contact,
+  friction or bounce.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_multiply, quat_normalize
+
+PAPER_STEPS = 50
+SECONDS_HORIZON = 2.0
+
+
+def translation_errors(predicted, truth):
+    """(O, 3) x2 -> (O,) distances."""
+    return np.linalg.norm(np.asarray(predicted, np.float64) - np.asarray(truth, np.float64), axis=1)
+
+
+def rotation_errors_deg(predicted, truth):
+    """(O, 4) x2 -> (O,) angles of q_gt⁻¹ q_pred in degrees."""
+    return quat_angle_deg(np.asarray(truth, np.float64), np.asarray(predicted, np.float64))
+
+
+def stand_still_baseline(scene, num_steps):
+    """Poses (2 + K, O, ·): frames 0, 1, then frame 1 repeated."""
+    positions = np.concatenate([scene.positions[:2], np.repeat(scene.positions[1:2], num_steps, 0)])
+    quaternions = np.concatenate([scene.quaternions[:2], np.repeat(scene.quaternions[1:2], num_steps, 0)])
+    return positions, quaternions
+
+
+def constant_velocity_baseline(scene, num_steps, gravity, dt):
+    """Ballistic flight from frames 0–1 that stops at the floor; poses (2 + K, O, ·)."""
+    geometry = scene.geometry
+    velocity = scene.positions[1] - scene.positions[0]
+    spin = quat_multiply(scene.quaternions[1], quat_conjugate(scene.quaternions[0]))
+    floor = _floor_height(geometry, scene.positions[1], scene.quaternions[1])
+    positions, quaternions = [scene.positions[0], scene.positions[1]], [scene.quaternions[0], scene.quaternions[1]]
+    moving = ~geometry.static.copy()
+    step_gravity = np.asarray(gravity, np.float64) * dt * dt
+    for _ in range(num_steps):
+        velocity = np.where(moving[:, None], velocity + step_gravity, 0.0)
+        position = positions[-1] + velocity
+        quaternion = np.where(moving[:, None], quat_normalize(quat_multiply(spin, quaternions[-1])), quaternions[-1])
+        landed = moving & (_lowest_z(geometry, position, quaternion) <= floor)
+        position[landed] = positions[-1][landed]
+        quaternion[landed] = quaternions[-1][landed]
+        moving &= ~landed
+        positions.append(position)
+        quaternions.append(quaternion)
+    return np.stack(positions), np.stack(quaternions)
+
+
+def _lowest_z(geometry, positions, quaternions):
+    """(O,) lowest world z of each object's vertices."""
+    z = geometry.world_vertices(positions, quaternions)[:, 2]
+    lowest = np.full(geometry.num_objects, np.inf)
+    np.minimum.at(lowest, geometry.vertex_object, z)
+    return lowest
+
+
+def _floor_height(geometry, positions, quaternions):
+    """The lowest static vertex, or −inf when the scene has no static object."""
+    lowest = _lowest_z(geometry, positions, quaternions)
+    return lowest[geometry.static].min() if geometry.static.any() else -np.inf
+
+
+def horizon_steps(dt, num_frames):
+    """{'50_steps': k, '2_seconds': k} for the horizons a trajectory of num_frames covers."""
+    horizons = {f"{PAPER_STEPS}_steps": PAPER_STEPS, f"{SECONDS_HORIZON:g}_seconds": int(round(SECONDS_HORIZON / dt))}
+    return {name: steps for name, steps in horizons.items() if 1 + steps < num_frames}
+
+
+def errors_at(scene, positions, quaternions, step):
+    """Per dynamic object at rollout step `step` (frame 1 + step): translation m, rotation deg."""
+    dynamic = ~scene.geometry.static
+    frame = 1 + step
+    translation = translation_errors(positions[frame][dynamic], scene.positions[frame][dynamic])
+    rotation = rotation_errors_deg(quaternions[frame][dynamic], scene.quaternions[frame][dynamic])
+    return translation, rotation
+
+
+def summarize_errors(records):
+    """records: dicts with 'translation' and 'rotation' arrays -> RMSE (m) and mean angle (deg)."""
+    if not records:
+        return None
+    translation = np.concatenate([r["translation"] for r in records])
+    rotation = np.concatenate([r["rotation"] for r in records])
+    return {
+        "translation_rmse_m": float(np.sqrt(np.mean(translation**2))),
+        "rotation_error_deg": float(np.mean(rotation)),
+        "objects": int(translation.size),
+        "trajectories": len(records),
+    }
+
+
+def method_rollouts(simulator, scene, num_steps, gravity, dt):
+    """name -> (positions, quaternions) for the model and both baselines."""
+    from fignetctl.core.model.rollout import rollout
+
+    return {
+        "model": rollout(simulator, scene, num_steps),
+        "constant_velocity": constant_velocity_baseline(scene, num_steps, gravity, dt),
+        "stand_still": stand_still_baseline(scene, num_steps),
+    }
+
+
+def scene_error_records(scene, mesh_names, rollouts, horizons):
+    """(method, horizon, shape) -> list of error records of this scene's dynamic objects."""
+    dynamic = ~scene.geometry.static
+    shapes = np.asarray(mesh_names)[dynamic]
+    records = {}
+    for method, (positions, quaternions) in rollouts.items():
+        for horizon, steps in horizons.items():
+            translation, rotation = errors_at(scene, positions, quaternions, steps)
+            records.setdefault((method, horizon, "all"), []).append({"translation": translation, "rotation": rotation})
+            for shape in np.unique(shapes):
+                keep = shapes == shape
+                record = {"translation": translation[keep], "rotation": rotation[keep]}
+                records.setdefault((method, horizon, str(shape)), []).append(record)
+    return records
+
+
+def evaluate_scenes(simulator, data, scenes, on_scene=None):
+    """Metrics of the model and the baselines on scenes of one trajectory file.
+
+    returns {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}}
+    """
+    all_records = {}
+    for scene in scenes:
+        horizons = horizon_steps(data.dt, scene.positions.shape[0])
+        if not horizons:
+            continue
+        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt)
+        mesh_names = data.trajectories[scene.name].mesh_names
+        for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
+            all_records.setdefault(key, []).extend(records)
+        if on_scene is not None:
+            on_scene(scene)
+    return nest_metrics(all_records)
+
+
+def nest_metrics(all_records):
+    """{(method, horizon, shape): records} -> nested metrics dict."""
+    result = {}
+    for (method, horizon, shape), records in sorted(all_records.items()):
+        entry = result.setdefault(method, {}).setdefault(horizon, {"all": None, "per_shape": {}})
+        if shape == "all":
+            entry["all"] = summarize_errors(records)
+        else:
+            entry["per_shape"][shape] = summarize_errors(records)
+    return result

@@ -1,0 +1,65 @@
+"""Files in, files out: the rollout and evaluation of trajectory files with a model file."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fignetctl.core.model.checkpoint import bundled_model_path, load_checkpoint
+from fignetctl.core.model.rollout import RolloutError, rollout
+from fignetctl.core.model.scene_data import scene_from_trajectory
+from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
+from fignetctl.errors import FignetError
+
+
+def load_model(path=None, device="cpu"):
+    """A model file, or the bundled FIGNet* checkpoint when `path` is None."""
+    if path is None:
+        path = bundled_model_path()
+        if not path.is_file():
+            raise FignetError(f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)")
+    return load_checkpoint(path, device=device)
+
+
+def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None) -> TrajectoryFile:
+    """Roll out one trajectory of a file; a RolloutError carries `partial_file` too."""
+    data = read_trajectories(scene_path, None if trajectory_id is None else [trajectory_id])
+    key = next(iter(data.trajectories))
+    if data.trajectories[key].num_frames < 2:
+        raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
+    scene = scene_from_trajectory(data, key, simulator.config.max_faces_per_object)
+    try:
+        positions, quaternions = rollout(simulator, scene, num_steps, on_step)
+    except RolloutError as error:
+        error.partial_file = rollout_result(data, key, error.positions, error.quaternions, simulator)
+        raise
+    return rollout_result(data, key, positions, quaternions, simulator)
+
+
+def rollout_result(data, key, positions, quaternions, simulator) -> TrajectoryFile:
+    """A trajectory file of the rollout: the scene's meshes and objects, the new frames."""
+    trajectory = dataclasses.replace(
+        data.trajectories[key],
+        positions=positions.astype(np.float32),
+        quaternions=(quaternions / np.linalg.norm(quaternions, axis=-1, keepdims=True)).astype(np.float32),
+        extras={},
+    )
+    used = set(trajectory.mesh_names)
+    meshes = {name: mesh for name, mesh in data.meshes.items() if name in used}
+    attrs = {"source": "fignetctl rollout", "model_config": simulator.config.to_json()}
+    return TrajectoryFile(data.dt, data.gravity, meshes, {key: trajectory}, attrs)
+
+
+def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None) -> dict:
+    """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file."""
+    from fignetctl.core.model.evaluation import evaluate_scenes
+
+    data = read_trajectories(data_path)
+    keys = list(data.trajectories)[:max_trajectories]
+    cache = {}
+    scenes = [scene_from_trajectory(data, key, simulator.config.max_faces_per_object, cache) for key in keys]
+    results = evaluate_scenes(simulator, data, scenes, on_scene)
+    if not results:
+        raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
+    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "metrics": results}

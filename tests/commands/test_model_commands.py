@@ -1,0 +1,78 @@
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fignetctl.cli import cli
+from fignetctl.core.trajectory import read_trajectories, write_trajectories
+from tests.conftest import box_drop_file
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("model")
+    data = write_trajectories(folder / "box.h5", box_drop_file(frames=80, height=5.0))  # stays above the floor for 50 steps
+    model = folder / "model.pt"
+    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "6", "--checkpoint-every", "3", "--log-csv", str(folder / "loss.csv")])
+    assert result.exit_code == 0, result.output
+    return folder, data, model
+
+
+def test_train_writes_model_and_loss_log(trained):
+    folder, _, model = trained
+    assert model.is_file()
+    rows = (folder / "loss.csv").read_text().splitlines()
+    assert rows[0] == "step,loss,seconds" and len(rows) == 7
+
+
+def test_train_refuses_existing_output_and_resumes_on_request(trained):
+    folder, data, model = trained
+    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])
+    assert result.exit_code == 2 and "--overwrite" in result.output
+    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume", "--checkpoint-every", "3"])
+    assert result.exit_code == 0, result.output
+
+
+def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
+    _, data, model = trained
+    out = tmp_path / "rollout.h5"
+    result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "5", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    rolled = read_trajectories(out).trajectories["00000"]
+    truth = read_trajectories(data).trajectories["00000"]
+    assert rolled.positions.shape == (7, 2, 3)
+    np.testing.assert_array_equal(rolled.positions[:2], truth.positions[:2])
+    np.testing.assert_array_equal(rolled.positions[:, 0], truth.positions[:7, 0])  # the static floor follows its frames
+
+
+def test_evaluate_reports_model_and_baselines(trained, tmp_path):
+    _, data, model = trained
+    out = tmp_path / "metrics.json"
+    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads(out.read_text())["metrics"]
+    assert set(metrics) == {"model", "constant_velocity", "stand_still"}
+    falling = metrics["stand_still"]["50_steps"]["all"]["translation_rmse_m"]
+    assert falling == pytest.approx(0.5 * 10 * ((51 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
+    assert metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free fall is ballistic
+    assert "box" in metrics["model"]["50_steps"]["per_shape"]
+
+
+@pytest.mark.parametrize("bad", ["garbage", "missing"])
+def test_bad_model_file_is_one_line_error(trained, tmp_path, bad):
+    _, data, _ = trained
+    model = tmp_path / "model.pt"
+    if bad == "garbage":
+        model.write_bytes(b"PK\x03\x04 not really" * 50)
+    result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "-o", str(tmp_path / "r.h5")])
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output and result.output.startswith("Error: ")
+    assert not (tmp_path / "r.h5").exists()
+
+
+def test_rollout_refuses_scene_with_one_frame(trained, tmp_path):
+    _, _, model = trained
+    scene = write_trajectories(tmp_path / "one.h5", box_drop_file(frames=1))
+    result = CliRunner().invoke(cli, ["rollout", str(scene), "--model", str(model), "-o", str(tmp_path / "r.h5")])
+    assert result.exit_code == 1 and "needs 2" in result.output

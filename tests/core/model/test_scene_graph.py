@@ -1,0 +1,110 @@
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from fignetctl.core.model.graph import FACE_FACE, NODE_NODE
+from fignetctl.core.model.scene_graph import (
+    GraphConfig,
+    build_scene_graph,
+    face_face_features,
+    graph_signature_for,
+    scene_geometry,
+)
+from fignetctl.core.transforms import random_quaternions
+
+FLOOR = (np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+
+
+def _two_objects_over_floor():
+    box, sphere = trimesh.creation.box(), trimesh.creation.icosphere(1)
+    meshes = [FLOOR, (box.vertices, box.faces), (sphere.vertices, sphere.faces)]
+    properties = [[0, 0.3, 0.5], [1.0, 0.5, 0.5], [2.0, 0.8, 0.7]]
+    geometry = scene_geometry(meshes, [1, 1, 0.5], [True, False, False], properties)
+    rng = np.random.default_rng(3)
+    quaternions = np.stack([random_quaternions(rng, 3)] * 3)
+    quaternions[:, 0] = [1, 0, 0, 0]
+    positions = np.array([[0, 0, 0], [0.1, 0.0, 0.9], [0.2, 0.1, 1.85]], float)
+    positions = np.stack([positions, positions + [0.01, 0, -0.02], positions + [0.02, 0, -0.04]])
+    positions[:, 0] = 0.0
+    return geometry, positions, quaternions
+
+
+def test_graph_has_every_node_and_collision_edges_only_near_contacts():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    scene_graph = build_scene_graph(geometry, positions, quaternions, GraphConfig(collision_radius=0.2))
+    dynamic_vertices = 8 + 42
+    assert scene_graph.num_dynamic_vertex_nodes == dynamic_vertices
+    assert (scene_graph.node_vertex[:dynamic_vertices] == geometry.dynamic_vertices).all()
+    assert (scene_graph.node_vertex[-2:] == -1).all()
+    face_face = scene_graph.graph.edge_sets[FACE_FACE]
+    assert face_face.num_edges > 0 and face_face.num_edges % 2 == 0
+    features = face_face.features.numpy()
+    assert (features[:, 3] <= 0.2 + 1e-6).all()
+    assert NODE_NODE not in scene_graph.graph.edge_sets
+
+
+def test_far_static_geometry_adds_no_nodes():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 1:, 2] += 5.0  # lift both objects far above the floor
+    scene_graph = build_scene_graph(geometry, positions, quaternions, GraphConfig(collision_radius=0.2))
+    assert not np.isin(scene_graph.node_vertex, np.arange(4)).any()
+    assert scene_graph.graph.num_nodes == 8 + 42 + 2
+
+
+def test_fignet_star_graph_equals_fignet_graph_without_node_node_edges():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    star = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, surface_edges=False)).graph
+    full = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, surface_edges=True)).graph
+    assert set(full.edge_sets) - set(star.edge_sets) == {NODE_NODE}
+    assert torch.equal(full.node_features, star.node_features)
+    for name, edge_set in star.edge_sets.items():
+        assert torch.equal(edge_set.features, full.edge_sets[name].features)
+        assert torch.equal(edge_set.senders, full.edge_sets[name].senders)
+    node_node = full.edge_sets[NODE_NODE]
+    dynamic_rows = 8 + 42
+    between_dynamic = (node_node.senders < dynamic_rows) & (node_node.receivers < dynamic_rows)
+    assert int(between_dynamic.sum()) == 2 * (18 + 120)  # a box's 18 edges and a 42-vertex icosphere's 120
+
+
+def test_features_do_not_change_when_the_whole_scene_moves():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    config = GraphConfig(0.2, surface_edges=True)
+    here = build_scene_graph(geometry, positions, quaternions, config).graph
+    there = build_scene_graph(geometry, positions + [1000.0, -2000.0, 30.0], quaternions, config).graph
+    torch.testing.assert_close(here.node_features, there.node_features, atol=2e-6, rtol=0)
+    for name, edge_set in here.edge_sets.items():
+        torch.testing.assert_close(edge_set.features, there.edge_sets[name].features, atol=2e-6, rtol=0)
+        assert torch.equal(edge_set.senders, there.edge_sets[name].senders)
+
+
+def test_face_face_features_do_not_depend_on_vertex_order():
+    rng = np.random.default_rng(0)
+    senders = rng.normal(size=(500, 3, 3))
+    receivers = rng.normal(size=(500, 3, 3)) + [0.0, 0.0, 2.0]
+    features, sender_order, receiver_order = face_face_features(senders, receivers)
+    for shift in (1, 2):  # cyclic permutations keep the orientation (and so the normal)
+        rolled_features, rolled_sender, rolled_receiver = face_face_features(
+            np.roll(senders, shift, axis=1), np.roll(receivers, shift, axis=1)
+        )
+        np.testing.assert_allclose(rolled_features, features, atol=1e-5)
+        np.testing.assert_array_equal((rolled_sender - shift) % 3, sender_order)
+        np.testing.assert_array_equal((rolled_receiver - shift) % 3, receiver_order)
+
+
+def test_face_face_features_of_degenerate_triangles_are_finite():
+    point = np.zeros((1, 3, 3))
+    segment = np.array([[[0, 0, 1.0], [1, 0, 1.0], [2, 0, 1.0]]])
+    features, _, _ = face_face_features(point, segment)
+    assert np.isfinite(features).all()
+    assert features[0, 3] == pytest.approx(1.0)
+
+
+def test_signature_matches_built_graphs():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    for surface_edges in (False, True):
+        config = GraphConfig(0.2, surface_edges)
+        graph = build_scene_graph(geometry, positions, quaternions, config).graph
+        signature = graph_signature_for(config)
+        assert {n: e.features.shape[1] for n, e in graph.edge_sets.items()} == signature.edge_feature_sizes
+        assert graph.node_features.shape[1] == signature.node_feature_size

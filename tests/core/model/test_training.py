@@ -1,0 +1,93 @@
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
+from fignetctl.core.model.network import PRESETS
+from fignetctl.core.model.rollout import RolloutError, rollout
+from fignetctl.core.model.scene_graph import GraphConfig
+from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+from fignetctl.core.model.training import TrainingConfig, make_trainer
+from fignetctl.core.trajectory import write_trajectories
+from fignetctl.errors import FormatError
+from tests.conftest import box_drop_file
+
+TINY = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, False))
+
+
+@pytest.fixture
+def box_file(tmp_path):
+    return write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+
+
+def _config(**changes):
+    return dataclasses.replace(TrainingConfig(steps=8, batch_size=2, checkpoint_every=4), **changes)
+
+
+def test_tiny_model_overfits_one_trajectory(box_file):
+    trainer = make_trainer(box_file, TINY, _config(steps=300, noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20))
+    trainer.run()
+    losses = [h["loss"] for h in trainer.history]
+    assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 10
+
+
+def test_resume_gives_the_same_weights_as_an_uninterrupted_run(box_file, tmp_path):
+    straight = make_trainer(box_file, TINY, _config())
+    straight.run()
+    interrupted = make_trainer(box_file, TINY, _config())
+    interrupted.run(tmp_path / "half.pt", until_step=4)
+    resumed = make_trainer(box_file, TINY, _config(), resume_from=tmp_path / "half.pt")
+    assert resumed.step == 4
+    resumed.run()
+    for name, value in straight.simulator.state_dict().items():
+        torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=0, atol=0)
+
+
+def test_checkpoint_round_trip_keeps_predictions(box_file, tmp_path):
+    trainer = make_trainer(box_file, TINY, _config())
+    trainer.run()
+    save_checkpoint(tmp_path / "m.pt", trainer.simulator)
+    loaded = load_checkpoint(tmp_path / "m.pt")
+    assert loaded.config == TINY
+    scene = trainer.scenes[0]
+    first = rollout(trainer.simulator.eval(), scene, 3)
+    second = rollout(loaded, scene, 3)
+    np.testing.assert_allclose(first[0], second[0])
+
+
+def test_bad_checkpoints_are_refused(tmp_path, box_file):
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"\x00not a model" * 100)
+    with pytest.raises(FormatError, match="not a readable fignetctl model"):
+        load_checkpoint(garbage)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(3)}, foreign)
+    with pytest.raises(FormatError, match="not a fignetctl model file"):
+        load_checkpoint(foreign)
+    newer = tmp_path / "newer.pt"
+    save_checkpoint(newer, LearnedSimulator(TINY), extra={"format_version": 99})
+    with pytest.raises(FormatError, match="format_version 99 is not supported"):
+        load_checkpoint(newer)
+    with pytest.raises(FormatError, match="no such model file"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_resume_on_other_data_is_refused(box_file, tmp_path):
+    trainer = make_trainer(box_file, TINY, _config(steps=2))
+    trainer.run(tmp_path / "m.pt")
+    other = write_trajectories(tmp_path / "other.h5", box_drop_file(frames=9))
+    with pytest.raises(Exception, match="trained on other data"):
+        make_trainer(other, TINY, _config(), resume_from=tmp_path / "m.pt")
+
+
+def test_runaway_rollout_stops_with_step_and_object_and_keeps_frames(box_file):
+    trainer = make_trainer(box_file, TINY, _config(steps=2))
+    trainer.run()
+    simulator = trainer.simulator.eval()
+    with torch.no_grad():
+        simulator.acceleration_normalizer.sum.mul_(1e12)  # an absurd acceleration scale
+    with pytest.raises(RolloutError, match="step 0: object 1") as error:
+        rollout(simulator, trainer.scenes[0], 5)
+    assert error.value.positions.shape[0] == 2

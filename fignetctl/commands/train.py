@@ -45,8 +45,10 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, step
     training_config = TrainingConfig(steps=steps, batch_size=batch_size, checkpoint_every=checkpoint_every, seed=seed)
     resume_from = path if resume and path.exists() else None
     trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from)
-    with options.progress(total=steps, initial=trainer.step, unit="step", desc="train") as bar:
+    with options.progress(total=steps, initial=trainer.step, unit="step", desc="train", disable=trainer.rank != 0 or None) as bar:
         trainer.run(path, on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")))
+    if trainer.rank != 0:
+        return
     if log_csv:
         write_loss_csv(log_csv, trainer.history)
     if rerun_path:

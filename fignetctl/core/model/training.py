@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import sample_rigid_pose_noise
@@ -100,12 +101,14 @@ class Trainer:
     """Holds the simulator, optimiser and random state; `run` trains to `config.steps`."""
 
     def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash=""):
+        self.rank, device = distributed.join_process_group(device)
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
+        self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash = device, data_hash
         self.optimizer = torch.optim.Adam(simulator.parameters(), lr=config.learning_rate_initial)
         self.step = 0
-        self.rng = np.random.default_rng(config.seed)
-        self.noise_generator = torch.Generator().manual_seed(config.seed)
+        self.rng = np.random.default_rng([config.seed, self.rank])
+        self.noise_generator = torch.Generator().manual_seed(config.seed * 1000 + self.rank)
         self.history = []
 
     def sample(self):
@@ -120,7 +123,7 @@ class Trainer:
         rows = _dynamic_rows([e[0] for e in examples]).to(self.device)
         targets = torch.cat([e[1] for e in examples]).to(self.device)
         normalized_targets = self.simulator.inverse_postprocess(targets, accumulate)
-        predictions = self.simulator(graph, accumulate)[rows]
+        predictions = self.model(graph, accumulate)[rows]
         loss = torch.mean((predictions - normalized_targets) ** 2)
         self._apply(loss)
         return float(loss.detach())
@@ -146,25 +149,35 @@ class Trainer:
                 self.save(checkpoint_path)
 
     def state(self) -> dict:
+        """Everything a resume needs; the random states of every process, in rank order."""
         return {
             "step": self.step,
             "optimizer": self.optimizer.state_dict(),
-            "rng": json.dumps(self.rng.bit_generator.state),
-            "noise_generator": self.noise_generator.get_state(),
+            "rng": json.dumps(distributed.gather_from_all(self.rng.bit_generator.state)),
+            "noise_generator": distributed.gather_from_all(self.noise_generator.get_state()),
             "history": json.dumps(self.history),
             "training_config": self.config.to_json(),
             "data_hash": self.data_hash,
         }
 
     def load_state(self, state: dict) -> None:
+        rng_states = json.loads(state["rng"])
+        if len(rng_states) != distributed.world_size():
+            raise FignetError(
+                f"the checkpoint was written by {len(rng_states)} process(es); resume it with as many"
+            )
         self.step = int(state["step"])
         self.optimizer.load_state_dict(state["optimizer"])
-        self.rng.bit_generator.state = json.loads(state["rng"])
-        self.noise_generator.set_state(state["noise_generator"])
+        self.rng.bit_generator.state = rng_states[self.rank]
+        self.noise_generator.set_state(state["noise_generator"][self.rank])
         self.history = json.loads(state["history"])
 
     def save(self, path) -> None:
-        save_checkpoint(path, self.simulator, training_state=self.state())
+        """Rank 0 writes the checkpoint atomically; the others wait for it."""
+        state = self.state()
+        if self.rank == 0:
+            save_checkpoint(path, self.simulator, training_state=state)
+        distributed.barrier()
 
 
 def _dynamic_rows(scene_graphs) -> torch.Tensor:

@@ -1,0 +1,41 @@
+"""Data-parallel training: 2 processes on the CPU under torchrun (gloo)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from fignetctl.cli import cli
+from fignetctl.core.trajectory import write_trajectories
+from tests.conftest import box_drop_file
+
+TORCHRUN = Path(sys.executable).with_name("torchrun")
+FIGNETCTL = Path(sys.executable).with_name("fignetctl")
+
+
+def _torchrun_train(data, model, steps, *extra):
+    command = [str(TORCHRUN), "--standalone", "--nproc_per_node", "2", str(FIGNETCTL), "train", str(data), "-o", str(model), "--size", "tiny", "--steps", str(steps), "--checkpoint-every", "2", *extra]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
+
+
+@pytest.mark.skipif(not (TORCHRUN.exists() and FIGNETCTL.exists()), reason="torchrun or the fignetctl script is not installed beside this python")
+def test_two_processes_train_and_resume_together(tmp_path):
+    data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    model = tmp_path / "model.pt"
+    first = _torchrun_train(data, model, 4)
+    assert first.returncode == 0, first.stderr[-2000:]
+    state = torch.load(model, weights_only=True)["training_state"]
+    rng_states = json.loads(state["rng"])
+    assert state["step"] == 4 and len(rng_states) == 2
+    assert rng_states[0] != rng_states[1]  # each process draws its own batches
+    resumed = _torchrun_train(data, model, 6, "--resume")
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert torch.load(model, weights_only=True)["training_state"]["step"] == 6
+    single = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume"])
+    assert single.exit_code == 1 and "resume it with as many" in single.output

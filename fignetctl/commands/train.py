@@ -10,7 +10,7 @@ from fignetctl.commands import options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Model file (.pt) to write; checkpointed while training.")
 @click.option("--model", "architecture", type=click.Choice(["fignet-star", "fignet"]), default="fignet-star", show_default=True, help="FIGNet* (no surface-mesh edges) or FIGNet.")
 @click.option("--size", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True, help="Network size preset (paper: latent 128, 10 message-passing steps).")
-@click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.1]")
+@click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.2]")
 @click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")

@@ -85,3 +85,17 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
     if with_training_state:
         return simulator, payload.get("training_state")
     return simulator
+
+
+def export_checkpoint(source, destination) -> Path:
+    """Copy a model file without its optimiser and random state (a few MB, for shipping).
+
+    What the run was (step, training settings, data hash, loss history) stays, under
+    `provenance`, so the shipped file still says how it was made.
+    """
+    payload = read_checkpoint_payload(source)
+    state = payload.pop("training_state", None) or {}
+    payload["provenance"] = {key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state}
+    with atomic_path(destination) as tmp:
+        torch.save(payload, tmp)
+    return Path(destination)

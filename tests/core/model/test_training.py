@@ -91,3 +91,16 @@ def test_runaway_rollout_stops_with_step_and_object_and_keeps_frames(box_file):
     with pytest.raises(RolloutError, match="step 0: object 1") as error:
         rollout(simulator, trainer.scenes[0], 5)
     assert error.value.positions.shape[0] == 2
+
+
+def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):
+    from fignetctl.core.model.checkpoint import export_checkpoint
+
+    trainer = make_trainer(box_file, TINY, _config(steps=3))
+    trainer.run(tmp_path / "full.pt")
+    export_checkpoint(tmp_path / "full.pt", tmp_path / "shipped.pt")
+    payload = torch.load(tmp_path / "shipped.pt", weights_only=True)
+    assert "training_state" not in payload and payload["provenance"]["step"] == 3
+    assert (tmp_path / "shipped.pt").stat().st_size < (tmp_path / "full.pt").stat().st_size
+    simulator, state = load_checkpoint(tmp_path / "shipped.pt", with_training_state=True)
+    assert state is None and simulator.config == TINY

@@ -1,0 +1,62 @@
+# fignetctl: set up, run the main job, test, benchmark.
+#   make demo    set up a fresh machine (.venv) and run the main job on the bundled default
+#   make test    set up and run the whole test suite
+#   make bench   print (and write json of) the benchmarks
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    ?= out
+JOBS   ?= 2
+
+.PHONY: setup demo test bench checkpoints evaluate-checkpoints clean
+
+# torch is pinned and installed first: an open range would pull a CUDA build of several GB.
+$(BIN)/fignetctl: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $@
+
+setup: $(BIN)/fignetctl
+
+# The main job (until the perception pipeline lands): a small MOVi-B-style dataset from
+# PyBullet, a summary, a rerun recording and an mp4 preview of its first trajectory.
+demo: setup
+	mkdir -p $(OUT)
+	$(BIN)/fignetctl make-dataset --preset movi-b -n 8 --seed 1 --jobs $(JOBS) --overwrite -o $(OUT)/movi-b.h5
+	$(BIN)/fignetctl show $(OUT)/movi-b.h5 --video $(OUT)/movi-b.mp4 --rerun $(OUT)/movi-b.rrd --overwrite
+	@echo "main job done: $(OUT)/movi-b.h5 $(OUT)/movi-b.mp4 $(OUT)/movi-b.rrd" >&2
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/python benchmarks/bench_geometry.py
+
+# The bundled checkpoints, reproduced: the data, then FIGNet* and FIGNet with the same settings
+# (docs/simulator.md has their figures). Hours on a 2-core CPU; resumable (re-run the target).
+DATA    ?= data
+TRAIN_FLAGS := --size small --max-faces 256 --collision-radius 0.2 --batch-size 4 --steps 8000 --checkpoint-every 250 --seed 0
+
+$(DATA)/movi-b-train.h5: | setup
+	mkdir -p $(DATA)
+	$(BIN)/fignetctl make-dataset --preset movi-b -n 600 --seed 1 -o $@
+$(DATA)/movi-b-test.h5: | setup
+	mkdir -p $(DATA)
+	$(BIN)/fignetctl make-dataset --preset movi-b -n 40 --seed 2 --split test -o $@
+
+$(DATA)/%-movi-b.pt: $(DATA)/movi-b-train.h5
+	$(BIN)/fignetctl train $< -o $@ --model $* $(TRAIN_FLAGS) --log-csv $(DATA)/$*-loss.csv $(if $(wildcard $@),--resume)
+
+checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
+	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt
+	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-movi-b.pt fignetctl/assets/models/fignet-movi-b.pt
+
+evaluate-checkpoints: $(DATA)/movi-b-test.h5
+	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt -o docs/results/fignet-star-movi-b-test.json --overwrite
+	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-movi-b.pt -o docs/results/fignet-movi-b-test.json --overwrite
+
+clean:
+	rm -rf $(OUT) .pytest_cache

@@ -198,8 +198,8 @@ def _check_header(f, where: str) -> None:
     fmt = _plain(f.attrs.get("format", None))
     if fmt != FORMAT:
         raise FormatError(f"{where}: attribute 'format' is {fmt!r}, expected {FORMAT!r}")
-    version = f.attrs.get("format_version", None)
-    if version is None or int(version) not in SUPPORTED_VERSIONS:
+    version = _plain(f.attrs.get("format_version", None))
+    if not isinstance(version, int) or version not in SUPPORTED_VERSIONS:
         raise FormatError(
             f"{where}: format_version {version!r} is not supported (this fignetctl reads "
             f"{', '.join(map(str, SUPPORTED_VERSIONS))}); upgrade fignetctl or convert the file"
@@ -262,10 +262,10 @@ def _validate_mesh(mesh: Mesh, where: str) -> None:
         raise FormatError(f"{where}: field 'faces' is empty")
     if not np.all(np.isfinite(vertices)):
         raise FormatError(f"{where}: field 'vertices' holds non-finite numbers")
-    if faces.min() < 0 or faces.max() >= len(vertices):
+    outside = faces[(faces < 0) | (faces >= len(vertices))]
+    if outside.size:
         raise FormatError(
-            f"{where}: field 'faces' refers to vertex {int(faces.max()) if faces.max() >= len(vertices) else int(faces.min())}, "
-            f"but the mesh has {len(vertices)} vertices"
+            f"{where}: field 'faces' refers to vertex {int(outside[0])}, but the mesh has {len(vertices)} vertices"
         )
 
 

@@ -34,6 +34,7 @@ test: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench_geometry.py
+	$(BIN)/python benchmarks/bench_dataset.py
 
 # The bundled checkpoints, reproduced: the data, then FIGNet* and FIGNet with the same settings
 # (docs/simulator.md has their figures). Hours on a 2-core CPU; resumable (re-run the target).

@@ -76,3 +76,11 @@ def test_rollout_refuses_scene_with_one_frame(trained, tmp_path):
     scene = write_trajectories(tmp_path / "one.h5", box_drop_file(frames=1))
     result = CliRunner().invoke(cli, ["rollout", str(scene), "--model", str(model), "-o", str(tmp_path / "r.h5")])
     assert result.exit_code == 1 and "needs 2" in result.output
+
+
+def test_train_logs_loss_to_rerun(trained, tmp_path):
+    _, data, _ = trained
+    rrd = tmp_path / "loss.rrd"
+    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(tmp_path / "m.pt"), "--size", "tiny", "--steps", "2", "--rerun", str(rrd)])
+    assert result.exit_code == 0, result.output
+    assert rrd.stat().st_size > 100

@@ -1,0 +1,78 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fignetctl.cli import cli
+from fignetctl.core.trajectory import write_trajectories
+from tests.conftest import INDEPENDENT_FIXTURE, box_drop_file
+
+
+@pytest.fixture
+def box_file(tmp_path):
+    return write_trajectories(tmp_path / "box.h5", box_drop_file(frames=10, height=1.5))
+
+
+def test_summary_on_stdout_and_json(box_file, tmp_path):
+    result = CliRunner().invoke(cli, ["show", str(box_file), "--json", str(tmp_path / "s.json")])
+    assert result.exit_code == 0, result.output
+    assert "1 trajectories" in result.output or "1 trajectory" in result.output
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["trajectories"] == 1
+    assert summary["per_trajectory"][0]["object_table"][1]["mesh"] == "box"
+
+
+def test_video_has_every_frame_and_shows_motion(box_file, tmp_path):
+    video = tmp_path / "b.mp4"
+    result = CliRunner().invoke(cli, ["show", str(box_file), "--video", str(video)])
+    assert result.exit_code == 0, result.output
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    assert len(frames) == 10 and frames[0].shape == (360, 480, 3)
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5
+
+
+def test_rerun_recording_is_written(box_file, tmp_path):
+    rrd = tmp_path / "b.rrd"
+    result = CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(rrd)])
+    assert result.exit_code == 0, result.output
+    assert rrd.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("content", [None, b"\x89HDF garbage" * 100])
+def test_missing_or_corrupt_file_is_one_line_error(tmp_path, content):
+    path = tmp_path / "bad.h5"
+    if content is not None:
+        path.write_bytes(content)
+    result = CliRunner().invoke(cli, ["show", str(path)])
+    assert result.exit_code == 1
+    assert result.output.startswith("Error: ") and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
+def test_existing_output_is_kept_without_overwrite(box_file, tmp_path):
+    video = tmp_path / "b.mp4"
+    video.write_bytes(b"precious")
+    result = CliRunner().invoke(cli, ["show", str(box_file), "--video", str(video)])
+    assert result.exit_code == 2 and "--overwrite" in result.output
+    assert video.read_bytes() == b"precious"
+
+
+def test_unknown_trajectory_is_named(box_file):
+    result = CliRunner().invoke(cli, ["show", str(box_file), "--trajectory", "00042", "--png", "x.png"])
+    assert result.exit_code == 2 and "00042" in result.output
+
+
+@pytest.mark.skipif(not INDEPENDENT_FIXTURE.exists(), reason="../shared is not beside the checkout")
+def test_shows_the_independent_fixture(tmp_path):
+    result = CliRunner().invoke(cli, ["show", str(INDEPENDENT_FIXTURE), "--png", str(tmp_path / "f.png"), "--frame", "30"])
+    assert result.exit_code == 0, result.output
+    image = cv2.imread(str(tmp_path / "f.png"))
+    assert image.shape == (360, 480, 3) and image.std() > 10

@@ -104,3 +104,15 @@ def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):
     assert (tmp_path / "shipped.pt").stat().st_size < (tmp_path / "full.pt").stat().st_size
     simulator, state = load_checkpoint(tmp_path / "shipped.pt", with_training_state=True)
     assert state is None and simulator.config == TINY
+
+
+def test_predicted_motion_does_not_change_when_the_whole_scene_moves(box_file):
+    trainer = make_trainer(box_file, TINY, _config(steps=3))
+    trainer.run()
+    simulator, scene = trainer.simulator.eval(), trainer.scenes[0]
+    positions, quaternions = scene.positions[:3], scene.quaternions[:3]
+    here = simulator.step(scene.geometry, positions, quaternions)
+    offset = np.array([1000.0, -1000.0, 50.0])
+    there = simulator.step(scene.geometry, positions + offset, quaternions)
+    np.testing.assert_allclose(there[0] - offset, here[0], atol=1e-4)  # float32 features: 0.1 mm at 1 km
+    np.testing.assert_allclose(there[1], here[1], atol=1e-5)

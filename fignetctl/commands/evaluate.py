@@ -7,7 +7,7 @@ from fignetctl.commands import options
 
 @click.command("evaluate")
 @click.argument("data", type=click.Path(dir_okay=False))
-@click.option("--model", "model_path", default=None, help="Model file.  [default: the bundled FIGNet* checkpoint]")
+@click.option("--model", "model_path", default=None, help="Model file, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
 @click.option("-n", "--max-trajectories", type=click.IntRange(min=1), default=None, help="Evaluate only the first N trajectories.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the metrics json here (otherwise to stdout).")
 @options.device_option
@@ -32,7 +32,7 @@ def evaluate(data, model_path, max_trajectories, output, device, overwrite):
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(unit="trajectory", desc="evaluate") as bar:
         metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1))
-    metrics["model"] = str(model_path or "bundled")
+    metrics["model"] = str(model_path or "fignet-star-movi-b")
     text = json.dumps(metrics, indent=2)
     if path is None:
         click.echo(text)

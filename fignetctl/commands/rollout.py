@@ -8,7 +8,7 @@ from fignetctl.commands import options
 @click.command("rollout")
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Rollout trajectory file (.h5) to write.")
-@click.option("--model", "model_path", default=None, help="Model file from `fignetctl train`.  [default: the bundled FIGNet* checkpoint]")
+@click.option("--model", "model_path", default=None, help="Model file from `fignetctl train`, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
 @click.option("--steps", type=click.IntRange(min=1), default=100, show_default=True, help="Frames to predict after the scene's first two.")
 @click.option("--trajectory", "trajectory_id", default=None, help="Which trajectory of SCENE.  [default: the first]")
 @options.device_option

@@ -24,13 +24,14 @@ from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
 FORMAT_VERSION = 1
+DEFAULT_BUNDLED = "fignet-star-movi-b"
 BUNDLED = {
     "fignet-star-movi-b": "fignet-star-movi-b.pt",
     "fignet-movi-b": "fignet-movi-b.pt",
 }
 
 
-def bundled_model_path(name="fignet-star-movi-b") -> Path:
+def bundled_model_path(name=DEFAULT_BUNDLED) -> Path:
     """The path of a checkpoint shipped inside the package."""
     return Path(str(resources.files("fignetctl") / "assets" / "models" / BUNDLED[name]))
 

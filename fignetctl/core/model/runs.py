@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from fignetctl.core.model.checkpoint import bundled_model_path, load_checkpoint
+from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, rollout
 from fignetctl.core.model.scene_data import scene_from_trajectory
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
@@ -14,9 +14,9 @@ from fignetctl.errors import FignetError
 
 
 def load_model(path=None, device="cpu"):
-    """A model file, or the bundled FIGNet* checkpoint when `path` is None."""
-    if path is None:
-        path = bundled_model_path()
+    """A model file, a bundled checkpoint by name, or the bundled FIGNet* when `path` is None."""
+    if path is None or path in BUNDLED:
+        path = bundled_model_path(path or DEFAULT_BUNDLED)
         if not path.is_file():
             raise FignetError(f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)")
     return load_checkpoint(path, device=device)

@@ -149,11 +149,13 @@ class SceneGraph:
     graph : MultiGraph with float32 features
     node_vertex : (N,) int64, the global vertex of each mesh node, −1 for object nodes
     num_dynamic_vertex_nodes : the first this many nodes are geometry.dynamic_vertices
+    vertices : (3, V, 3) float64 world vertices of frames t−1, t, t+1 it was built from
     """
 
     graph: MultiGraph
     node_vertex: np.ndarray
     num_dynamic_vertex_nodes: int
+    vertices: np.ndarray
 
 
 def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
@@ -179,7 +181,7 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, vertices[1], vertex_to_node)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
-    return SceneGraph(graph, node_vertex, len(geometry.dynamic_vertices))
+    return SceneGraph(graph, node_vertex, len(geometry.dynamic_vertices), vertices)
 
 
 def collision_face_pairs(geometry, vertices_now, radius):

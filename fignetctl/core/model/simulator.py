@@ -120,9 +120,8 @@ class LearnedSimulator(nn.Module):
         scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph)
         device = next(self.parameters()).device
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
-        dynamic = geometry.dynamic_vertices
-        history = [geometry.world_vertices(positions[k], quaternions[k])[dynamic] for k in (0, 1)]
-        next_vertices = self.postprocess(normalized, history[0], history[1])
+        previous, now = scene_graph.vertices[:2, geometry.dynamic_vertices]
+        next_vertices = self.postprocess(normalized, previous, now)
         return rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
 
 

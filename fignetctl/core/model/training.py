@@ -89,10 +89,8 @@ def training_example(simulator, scene, frame, generator, config: TrainingConfig)
     """One noisy example: the raw graph and the raw acceleration targets of its dynamic vertices."""
     positions, quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
     positions, quaternions = jitter_frame_t(positions, quaternions, scene.geometry.static, generator, config)
-    geometry = scene.geometry
-    scene_graph = build_scene_graph(geometry, positions, quaternions, simulator.config.graph)
-    dynamic = geometry.dynamic_vertices
-    previous, now, after = (geometry.world_vertices(p, q)[dynamic] for p, q in zip(positions, quaternions))
+    scene_graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph)
+    previous, now, after = scene_graph.vertices[:, scene.geometry.dynamic_vertices]
     acceleration = torch.from_numpy((after - 2.0 * now + previous).astype(np.float32))
     return scene_graph, acceleration
 

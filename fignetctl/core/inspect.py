@@ -49,7 +49,8 @@ def mesh_inertia(vertices: np.ndarray, faces: np.ndarray, scale: float, mass: fl
 
     vertices = np.asarray(vertices, np.float64)
     triangles = vertices[np.asarray(faces)]
-    properties = trimesh.triangles.mass_properties(triangles, density=1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat mesh divides by a zero volume
+        properties = trimesh.triangles.mass_properties(triangles, density=1.0)
     extent = np.ptp(vertices, axis=0)
     if abs(properties.volume) > 1e-9 * max(float(np.prod(extent)), 1e-30):
         return mass * scale**2 * np.asarray(properties.inertia) / properties.volume

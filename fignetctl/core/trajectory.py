@@ -165,8 +165,10 @@ def read_trajectories(path, trajectory_ids=None) -> TrajectoryFile:
             data = _read_open_file(f, str(path), trajectory_ids)
     except FormatError:
         raise
-    except (OSError, KeyError, ValueError, TypeError) as error:
-        raise FormatError(f"{path}: not a readable HDF5 trajectory file ({error})") from None
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError) as error:
+        # h5py reports damaged files with any of these, depending on where the damage is
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise FormatError(f"{path}: not a readable HDF5 trajectory file ({reason})") from None
     _validate(data, str(path))
     return data
 

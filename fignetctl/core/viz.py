@@ -34,6 +34,7 @@ STATIC_COLOUR = (170.0, 170.0, 160.0)
 BACKGROUND_COLOUR = (235, 238, 242)
 FLOOR_COLOUR = (214, 214, 206)
 GRID_COLOUR = (160, 160, 150)
+SHADOW_COLOUR = (180, 180, 172)
 NEAR_PLANE = 0.05
 
 
@@ -102,23 +103,39 @@ def fit_camera(data, trajectory_id, size=(480, 360), azimuth_deg=-60.0, elevatio
     """A fixed camera that keeps every dynamic object of the trajectory in view at all frames.
 
     It looks at the centre of the box swept by the objects (down to the floor) from the
-    given azimuth (around z, from +x) and elevation, far enough back that the box's
-    bounding sphere fits the narrower field of view.
+    given azimuth (around z, from +x) and elevation, as close as it can while the box's
+    eight corners stay inside the image (with a small margin).
     """
     low, high = scene_bounds(data, trajectory_id)
     centre, radius = (low + high) / 2.0, max(float(np.linalg.norm(high - low)) / 2.0, 1e-3)
     half_fov_y = math.radians(fov_y_deg) / 2.0
     half_fov_x = math.atan(math.tan(half_fov_y) * size[0] / size[1])
-    distance = radius / math.sin(min(half_fov_x, half_fov_y))
     azimuth, elevation = math.radians(azimuth_deg), math.radians(elevation_deg)
     direction = np.array(
         [math.cos(azimuth) * math.cos(elevation), math.sin(azimuth) * math.cos(elevation), math.sin(elevation)]
     )
-    return look_at_camera(centre + distance * direction, centre, size, fov_y_deg)
+    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+
+    def camera_at(distance):
+        return look_at_camera(centre + distance * direction, centre, size, fov_y_deg)
+
+    far = radius / math.sin(min(half_fov_x, half_fov_y))  # the bounding sphere fits: always in view
+    near = 0.0
+    for _ in range(30):  # bisection on the closest distance that keeps the corners in view
+        middle = (near + far) / 2.0
+        near, far = (near, middle) if _corners_in_view(camera_at(middle), corners) else (middle, far)
+    return camera_at(far)
+
+
+def _corners_in_view(camera: Camera, corners: np.ndarray, margin: float = 0.04) -> bool:
+    pixels, depth = camera.project(corners)
+    inside_x = (pixels[:, 0] >= margin * camera.width) & (pixels[:, 0] <= (1 - margin) * camera.width)
+    inside_y = (pixels[:, 1] >= margin * camera.height) & (pixels[:, 1] <= (1 - margin) * camera.height)
+    return bool(np.all((depth > NEAR_PLANE) & inside_x & inside_y))
 
 
 def scene_bounds(data: TrajectoryFile, trajectory_id) -> tuple:
-    """(3,) low and high corners of the box swept by the dynamic objects, floor included.
+    """(3,) low and high corners of the box swept by the dynamic objects, down to the floor.
 
     Each object counts as a sphere of its scaled mesh's radius around its positions; with no
     dynamic object, every object counts.
@@ -137,8 +154,8 @@ def scene_bounds(data: TrajectoryFile, trajectory_id) -> tuple:
     low = (positions - radii[chosen, None]).reshape(-1, 3).min(axis=0)
     high = (positions + radii[chosen, None]).reshape(-1, 3).max(axis=0)
     floor = floor_height(data, trajectory)
-    if floor is not None:
-        low[2], high[2] = min(low[2], floor), max(high[2], floor)
+    if floor is not None:  # objects rest on the floor: nothing to see below it
+        low[2], high[2] = floor, max(high[2], floor)
     return low, high
 
 
@@ -221,9 +238,11 @@ class PreviewRenderer:
 
         image = np.empty((self.camera.height, self.camera.width, 3), np.uint8)
         image[:] = BACKGROUND_COLOUR
+        world = self._posed_vertices(frame)
         if self.floor_z is not None:
             self._draw_floor(image)
-        self._draw_triangles(image, frame)
+            self._draw_shadows(image, world)
+        self._draw_triangles(image, world)
         label = f"trajectory {self.trajectory_id}  frame {frame}  t={frame * self.dt:.2f} s"
         cv2.putText(image, label, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (60, 60, 60), 1, cv2.LINE_AA)
         return image
@@ -247,12 +266,25 @@ class PreviewRenderer:
         brightness = 0.35 + 0.65 * np.clip(normals[chosen] @ self.light, 0.0, 1.0)
         return chosen, brightness
 
-    def _draw_triangles(self, image: np.ndarray, frame: int) -> None:
+    def _draw_shadows(self, image: np.ndarray, world: np.ndarray) -> None:
+        """Each dynamic object's outline dropped straight down onto the floor: a height cue."""
+        import cv2
+
+        for index in np.flatnonzero(~np.asarray(self.trajectory.static, bool)):
+            points = world[self.meshes.vertex_objects == index].copy()
+            if len(points) < 3:
+                continue
+            points[:, 2] = self.floor_z
+            pixels, depth = self.camera.project(points)
+            if (depth > NEAR_PLANE).all():
+                hull = cv2.convexHull(np.round(pixels * 16).astype(np.int32))
+                cv2.fillConvexPoly(image, hull, SHADOW_COLOUR, cv2.LINE_AA, 4)
+
+    def _draw_triangles(self, image: np.ndarray, world: np.ndarray) -> None:
         import cv2
 
         if len(self.meshes.faces) == 0:
             return
-        world = self._posed_vertices(frame)
         pixels, depth = self.camera.project(world)
         chosen, brightness = self._visible_faces(world, depth)
         polygons = np.round(pixels[self.meshes.faces[chosen]] * 16).astype(np.int32)  # 4 fractional bits
@@ -299,7 +331,10 @@ def _grid_extent(low: np.ndarray, high: np.ndarray) -> tuple:
 def render_frame(data: TrajectoryFile, trajectory_id, frame: int = -1, size=(480, 360), camera: Camera | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB preview of one frame (negative frames count from the end)."""
     renderer = PreviewRenderer(data, trajectory_id, size, camera)
-    return renderer.render(frame % renderer.trajectory.num_frames)
+    frames = renderer.trajectory.num_frames
+    if not -frames <= frame < frames:
+        raise FignetError(f"frame {frame} is outside the trajectory's {frames} frames (0..{frames - 1}, or -1 for the last)")
+    return renderer.render(frame % frames)
 
 
 def write_preview_png(data: TrajectoryFile, trajectory_id, path_png, frame: int = -1, size=(480, 360)) -> Path:

@@ -76,3 +76,73 @@ def test_shows_the_independent_fixture(tmp_path):
     assert result.exit_code == 0, result.output
     image = cv2.imread(str(tmp_path / "f.png"))
     assert image.shape == (360, 480, 3) and image.std() > 10
+
+
+def _rerun_executable():
+    import shutil
+    import sys
+    from pathlib import Path
+
+    beside_python = Path(sys.executable).parent / "rerun"
+    return str(beside_python) if beside_python.exists() else shutil.which("rerun")
+
+
+def test_video_container_reports_frame_count_and_size(box_file, tmp_path):
+    video = tmp_path / "b.mp4"
+    assert CliRunner().invoke(cli, ["show", str(box_file), "--video", str(video)]).exit_code == 0
+    capture = cv2.VideoCapture(str(video))
+    assert capture.isOpened()
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 10
+    assert (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))) == (480, 360)
+    assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(60.0, rel=1e-3)
+    assert not list(tmp_path.glob(".b.*"))  # no temporary file left beside it
+
+
+@pytest.mark.skipif(_rerun_executable() is None, reason="the rerun viewer CLI is not installed")
+def test_rerun_recording_passes_rrd_verify(box_file, tmp_path):
+    import subprocess
+
+    rrd = tmp_path / "b.rrd"
+    assert CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(rrd)]).exit_code == 0
+    check = subprocess.run([_rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0, check.stdout + check.stderr
+
+
+def test_wrong_format_version_is_one_line_error(box_file):
+    import h5py
+
+    with h5py.File(box_file, "r+") as f:
+        f.attrs["format_version"] = 99
+    result = CliRunner().invoke(cli, ["show", str(box_file)])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1 and "format_version" in result.output
+
+
+def test_random_bytes_are_one_line_error(tmp_path):
+    path = tmp_path / "noise.h5"
+    path.write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    result = CliRunner().invoke(cli, ["show", str(path)])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
+def test_overwrite_replaces_every_existing_output(box_file, tmp_path):
+    paths = {flag: tmp_path / name for flag, name in (("--json", "s.json"), ("--png", "f.png"), ("--rerun", "r.rrd"))}
+    for path in paths.values():
+        path.write_bytes(b"old")
+    arguments = [item for flag, path in paths.items() for item in (flag, str(path))]
+    refused = CliRunner().invoke(cli, ["show", str(box_file), *arguments])
+    assert refused.exit_code == 2 and all(p.read_bytes() == b"old" for p in paths.values())
+    result = CliRunner().invoke(cli, ["show", str(box_file), *arguments, "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(paths["--json"].read_text())["frames"] == 10
+    assert cv2.imread(str(paths["--png"])).shape == (360, 480, 3)
+    assert paths["--rerun"].stat().st_size > 1000
+
+
+def test_trajectory_by_number_and_frame_out_of_range(box_file, tmp_path):
+    ok = CliRunner().invoke(cli, ["show", str(box_file), "--trajectory", "0", "--png", str(tmp_path / "a.png")])
+    assert ok.exit_code == 0, ok.output
+    bad = CliRunner().invoke(cli, ["show", str(box_file), "--png", str(tmp_path / "b.png"), "--frame", "10"])
+    assert bad.exit_code == 1 and "frame 10" in bad.output and "Traceback" not in bad.output
+    assert not (tmp_path / "b.png").exists()

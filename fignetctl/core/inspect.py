@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from fignetctl.core.trajectory import Trajectory, TrajectoryFile
-from fignetctl.core.transforms import quat_multiply, quat_to_matrix
+from fignetctl.core.transforms import lowest_vertex_heights as object_lowest_heights
+from fignetctl.core.transforms import quat_multiply, quat_to_matrix, transform_points
 
 ENERGY_TERMS = ("kinetic_translational", "kinetic_rotational", "potential", "total")
 
@@ -65,12 +66,15 @@ def world_vertices(data: TrajectoryFile, trajectory_id, frame: int) -> list:
     Returns a list of (V_o, 3) float64 arrays, one per object: R(q)·(scale·v) + p.
     """
     trajectory = data.trajectories[str(trajectory_id)]
-    rotations = quat_to_matrix(trajectory.quaternions[frame])
-    result = []
-    for index, name in enumerate(trajectory.mesh_names):
-        local = float(trajectory.scales[index]) * np.asarray(data.meshes[str(name)].vertices, np.float64)
-        result.append(local @ rotations[index].T + trajectory.positions[frame, index])
-    return result
+    return [
+        transform_points(
+            data.meshes[str(name)].vertices,
+            float(trajectory.scales[index]),
+            trajectory.positions[frame, index],
+            trajectory.quaternions[frame, index],
+        )
+        for index, name in enumerate(trajectory.mesh_names)
+    ]
 
 
 # ----------------------------------------------------------------------------- motion
@@ -137,19 +141,15 @@ def energies(data: TrajectoryFile, trajectory: Trajectory) -> dict:
 
 
 def lowest_vertex_heights(data: TrajectoryFile, trajectory: Trajectory) -> np.ndarray:
-    """(T,) lowest world z of any dynamic object's vertices per frame (NaN if none moves).
-
-    Only the third row of each rotation is needed: z = R[2]·(s·v) + p_z.
-    """
-    rotations = quat_to_matrix(trajectory.quaternions)
-    lowest = np.full(trajectory.num_frames, np.inf)
-    for index, name in enumerate(trajectory.mesh_names):
-        if trajectory.static[index]:
-            continue
-        local = float(trajectory.scales[index]) * np.asarray(data.meshes[str(name)].vertices, np.float64)
-        heights = rotations[:, index, 2, :] @ local.T + trajectory.positions[:, index, 2:3]
-        lowest = np.minimum(lowest, heights.min(axis=1))
-    return np.where(np.isfinite(lowest), lowest, np.nan)
+    """(T,) lowest world z of any dynamic object's vertices per frame (NaN if none moves)."""
+    dynamic = np.flatnonzero(~np.asarray(trajectory.static, bool))
+    if dynamic.size == 0:
+        return np.full(trajectory.num_frames, np.nan)
+    vertex_sets = [data.meshes[str(trajectory.mesh_names[o])].vertices for o in dynamic]
+    positions = np.asarray(trajectory.positions, np.float64)[:, dynamic]
+    scales = np.asarray(trajectory.scales, np.float64)[dynamic]
+    per_object = object_lowest_heights(positions, trajectory.quaternions[:, dynamic], scales, vertex_sets)
+    return per_object.min(axis=1)
 
 
 # ----------------------------------------------------------------------------- summary

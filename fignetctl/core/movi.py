@@ -33,6 +33,7 @@ import numpy as np
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
 from fignetctl.core.transforms import (
+    lowest_vertex_heights,
     matrix_to_quat,
     quat_conjugate,
     quat_multiply,
@@ -685,19 +686,6 @@ def _exploded(record: SimulationRecord, config: MoviConfig) -> bool:
     angular_speed = np.linalg.norm(record.angular_velocities, axis=-1).max()
     far = np.abs(record.positions).max()
     return speed > config.max_speed or angular_speed > config.max_angular_speed or far > config.world_bound
-
-
-def lowest_vertex_heights(positions, quaternions, scales, hulls) -> np.ndarray:
-    """(T, O) height of each object's lowest vertex: min over v of (R(q) · s v)_z + p_z.
-
-    positions : (T, O, 3), quaternions : (T, O, 4) w x y z, scales : (O,),
-    hulls : O arrays (H_o, 3) of object-frame vertices (the convex hull's suffice)
-    """
-    third_rows = quat_to_matrix(quaternions)[..., 2, :]  # (T, O, 3)
-    lowest = [
-        (third_rows[:, o] @ (scales[o] * np.asarray(hulls[o]).T)).min(axis=1) for o in range(len(hulls))
-    ]
-    return np.stack(lowest, axis=1) + positions[..., 2]
 
 
 # ----------------------------------------------------------------------------- parallel runs

@@ -206,3 +206,16 @@ def quat_wxyz_to_xyzw(quaternions):
     """
     quaternions = np.asarray(quaternions, dtype=np.float64)
     return np.concatenate([quaternions[..., 1:], quaternions[..., :1]], axis=-1)
+
+
+def lowest_vertex_heights(positions, quaternions, scales, hulls):
+    """(T, O) height of each object's lowest vertex: min over v of (R(q) · s v)_z + p_z.
+
+    positions : (T, O, 3), quaternions : (T, O, 4) w x y z, scales : (O,),
+    hulls : O arrays (H_o, 3) of object-frame vertices (the convex hull's suffice)
+    """
+    third_rows = quat_to_matrix(quaternions)[..., 2, :]  # (T, O, 3)
+    lowest = [
+        (third_rows[:, o] @ (scales[o] * np.asarray(hulls[o]).T)).min(axis=1) for o in range(len(hulls))
+    ]
+    return np.stack(lowest, axis=1) + positions[..., 2]

@@ -22,6 +22,8 @@ COMMANDS = {
     "rollout": "rollout:rollout",
     "evaluate": "evaluate:evaluate",
     "bench-memory": "bench_memory:bench_memory",
+    "render-views": "render_views:render_views",
+    "capture-poses": "capture_poses:capture_poses",
 }
 
 log = logging.getLogger("fignetctl")
@@ -62,6 +64,8 @@ _SUMMARIES = {
     "rollout": "Simulate a scene forward with a learned model.",
     "evaluate": "Paper metrics of a model against ground truth, with baselines.",
     "bench-memory": "Edges, runtime and peak memory of FIGNet vs FIGNet* (paper Table 1).",
+    "render-views": "The bundled capture: a textured tabletop scene rendered from an orbit.",
+    "capture-poses": "Camera poses (metres, z up) of images or a video: cameras.npz.",
 }
 
 

@@ -1,0 +1,284 @@
+"""Metres and z up for cameras from structure from motion (the physics needs both).
+
+Conventions (docs/capture-poses.md):
+- Up: the normal of the dominant support plane in the sparse points (RANSAC, among planes
+  within 45° of the cameras' mean up vector), oriented toward the cameras; or, as a
+  fallback or on request, the cameras' mean up vector (-y of OpenCV cameras: a photographer
+  mostly holds the camera level).
+- Origin: the centroid of the plane's inlier points, moved onto the plane, so the support
+  plane is z = 0. With the camera up vector, the support height is the densest height band
+  of the points below the cameras, or, with no points, the point the cameras look at (the
+  point nearest to all optical axes).
+- Yaw: the smallest rotation taking the up vector to +z (the horizontal axes follow COLMAP's).
+- Scale: from one length the user measured — the mean height of the camera centres above
+  the support plane (default 0.5 m), or the distance between two cameras.
+
+Everything is a similarity x' = s · R · (x − origin), applied to cameras and points alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+
+from fignetctl.core.cameras import Cameras
+from fignetctl.errors import FignetError
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CAMERA_HEIGHT = 0.5  # metres: a hand-held camera looking down at a table top
+MAX_PLANE_TILT_DEG = 45.0  # planes steeper than this from the cameras' up are walls
+MIN_PLANE_INLIER_FRACTION = 0.15
+
+
+@dataclasses.dataclass(frozen=True)
+class AlignmentSettings:
+    """How capture-poses puts the cameras into metres with z up."""
+
+    gravity: str = "auto"
+    """'plane' (support plane normal), 'cameras' (mean camera up), 'auto' (plane, else cameras), 'none'."""
+    camera_height: float | None = None
+    """Measured mean height (m) of the camera centres above the support plane."""
+    baseline: tuple | None = None
+    """(image_a, image_b, metres): the measured distance between two camera centres."""
+    plane_threshold: float = 0.01
+    """RANSAC inlier distance as a fraction of the scene size (points' 5–95% extent)."""
+    ransac_iterations: int = 1000
+    """RANSAC plane hypotheses."""
+    seed: int = 0
+    """RANSAC's random seed."""
+
+
+@dataclasses.dataclass
+class Alignment:
+    """The similarity x' = scale · rotation · (x − origin) and how it was found."""
+
+    scale: float
+    rotation: np.ndarray  # (3, 3)
+    origin: np.ndarray  # (3,)
+    gravity_source: str  # 'plane', 'cameras' or 'none'
+    scale_source: str
+    plane_inliers: int = 0
+
+    def matrix(self) -> np.ndarray:
+        """(4, 4) homogeneous matrix of the similarity."""
+        matrix = np.eye(4)
+        matrix[:3, :3] = self.scale * self.rotation
+        matrix[:3, 3] = -self.scale * self.rotation @ self.origin
+        return matrix
+
+
+# ----------------------------------------------------------------------------- geometry
+
+
+def umeyama(source, target, with_scale=True):
+    """Similarity (s, R, t) minimising Σ‖s·R·source_i + t − target_i‖² (Umeyama 1991).
+
+    source, target : (n, 3) float, n ≥ 3 points not all on a line
+    """
+    source, target = np.asarray(source, float), np.asarray(target, float)
+    mean_source, mean_target = source.mean(axis=0), target.mean(axis=0)
+    centred_source, centred_target = source - mean_source, target - mean_target
+    covariance = centred_target.T @ centred_source / len(source)
+    u, singular_values, vt = np.linalg.svd(covariance)
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    rotation = u @ sign @ vt
+    variance = (centred_source**2).sum() / len(source)
+    scale = float((singular_values * np.diag(sign)).sum() / variance) if with_scale else 1.0
+    translation = mean_target - scale * rotation @ mean_source
+    return scale, rotation, translation
+
+
+def rotation_between(a, b) -> np.ndarray:
+    """(3, 3) smallest rotation taking unit vector `a` to unit vector `b` (Rodrigues)."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    sine, cosine = np.linalg.norm(axis), float(a @ b)
+    if sine < 1e-12:
+        if cosine > 0:
+            return np.eye(3)
+        perpendicular = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        perpendicular /= np.linalg.norm(perpendicular)
+        return 2 * np.outer(perpendicular, perpendicular) - np.eye(3)  # 180° about it
+    axis /= sine
+    cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + sine * cross + (1 - cosine) * cross @ cross
+
+
+def fit_plane_least_squares(points):
+    """(normal, centroid) of the total-least-squares plane through (n, 3) points."""
+    centroid = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    return vt[2], centroid
+
+
+def fit_plane_ransac(points, threshold, iterations=1000, seed=0, allowed=None):
+    """The plane with the most points within `threshold`, refit to its inliers.
+
+    points : (n, 3) float
+    allowed : optional function normal -> bool that rejects hypotheses (e.g. walls)
+    Returns (normal, centroid of inliers, inlier mask), or None with fewer than 3 points or
+    no allowed plane.
+    """
+    points = np.asarray(points, float)
+    if len(points) < 3:
+        return None
+    rng = np.random.default_rng(seed)
+    samples = rng.integers(0, len(points), size=(iterations, 3))
+    a, b, c = points[samples[:, 0]], points[samples[:, 1]], points[samples[:, 2]]
+    normals = np.cross(b - a, c - a)
+    lengths = np.linalg.norm(normals, axis=1)
+    best_mask, best_count = None, 0
+    for normal, length, anchor in zip(normals, lengths, a):
+        if length < 1e-12:
+            continue
+        normal = normal / length
+        if allowed is not None and not allowed(normal):
+            continue
+        mask = np.abs((points - anchor) @ normal) < threshold
+        count = int(mask.sum())
+        if count > best_count:
+            best_mask, best_count = mask, count
+    if best_mask is None or best_count < 3:
+        return None
+    for _ in range(2):  # refit, then take the inliers of the refit plane
+        normal, centroid = fit_plane_least_squares(points[best_mask])
+        best_mask = np.abs((points - centroid) @ normal) < threshold
+    return normal, points[best_mask].mean(axis=0), best_mask
+
+
+def camera_up(cameras: Cameras) -> np.ndarray:
+    """(3,) unit mean up vector of the cameras: −y of OpenCV c2w, averaged."""
+    up = -cameras.c2w[:, :3, 1].mean(axis=0)
+    norm = np.linalg.norm(up)
+    if norm < 1e-6:
+        raise FignetError("the cameras' up vectors cancel out; gravity cannot come from them (use --gravity plane)")
+    return up / norm
+
+
+def looked_at_point(cameras: Cameras) -> np.ndarray:
+    """(3,) the point nearest (least squares) to all optical axes: what the cameras look at."""
+    directions = cameras.c2w[:, :3, 2]
+    projectors = np.eye(3) - directions[:, :, None] * directions[:, None, :]
+    matrix = projectors.sum(axis=0)
+    if np.linalg.cond(matrix) > 1e8:  # parallel axes meet nowhere
+        return cameras.centres.mean(axis=0) + directions.mean(axis=0)
+    return np.linalg.solve(matrix, np.einsum("nij,nj->i", projectors, cameras.centres))
+
+
+def scene_size(points, cameras: Cameras | None = None) -> float:
+    """Robust size of the scene: the diagonal of the points' 5–95% box (or of the cameras')."""
+    points = np.asarray(points, float).reshape(-1, 3)
+    if len(points) < 10 and cameras is not None:
+        points = np.concatenate([points, cameras.centres])
+    low, high = np.percentile(points, [5, 95], axis=0)
+    return float(np.linalg.norm(high - low)) or 1.0
+
+
+# ----------------------------------------------------------------------------- alignment
+
+
+def support_plane(cameras: Cameras, settings: AlignmentSettings):
+    """RANSAC support plane of the sparse points: (up normal, point on it, inlier count) or None."""
+    points = cameras.points
+    if len(points) < 20:
+        return None
+    up = camera_up(cameras)
+    cos_max = np.cos(np.deg2rad(MAX_PLANE_TILT_DEG))
+    threshold = settings.plane_threshold * scene_size(points, cameras)
+    found = fit_plane_ransac(
+        points, threshold, settings.ransac_iterations, settings.seed, allowed=lambda n: abs(n @ up) >= cos_max
+    )
+    if found is None:
+        return None
+    normal, centroid, mask = found
+    if mask.sum() < MIN_PLANE_INLIER_FRACTION * len(points):
+        return None
+    # Toward the cameras: most camera centres lie on the positive side.
+    if np.median((cameras.centres - centroid) @ normal) < 0:
+        normal = -normal
+    if np.degrees(np.arccos(np.clip(normal @ up, -1, 1))) > MAX_PLANE_TILT_DEG:
+        return None  # the cameras look up at it: not a support plane
+    return normal, centroid, int(mask.sum())
+
+
+def support_height_along(up, cameras: Cameras, settings: AlignmentSettings) -> np.ndarray:
+    """A point on the support plane for a given `up`: the densest band of point heights below
+    the cameras (or the lowest camera when there are no points)."""
+    heights = cameras.points @ up if len(cameras.points) else np.zeros(0)
+    heights = heights[heights < (cameras.centres @ up).min()]
+    if len(heights) < 10:
+        return looked_at_point(cameras)
+    band = settings.plane_threshold * scene_size(cameras.points, cameras)
+    sorted_heights = np.sort(heights)
+    counts = np.searchsorted(sorted_heights, sorted_heights + band) - np.arange(len(sorted_heights))
+    start = int(np.argmax(counts))
+    height = float(np.median(sorted_heights[start : start + counts[start]]))
+    inliers = np.abs(cameras.points @ up - height) < band
+    centroid = cameras.points[inliers].mean(axis=0)
+    return centroid + (height - centroid @ up) * up
+
+
+def gravity(cameras: Cameras, settings: AlignmentSettings):
+    """(up, point on the support plane, source, plane inliers) for the chosen gravity source."""
+    if settings.gravity in ("plane", "auto"):
+        plane = support_plane(cameras, settings)
+        if plane is not None:
+            return plane[0], plane[1], "plane", plane[2]
+        if settings.gravity == "plane":
+            raise FignetError(
+                f"no support plane found in the {len(cameras.points)} sparse points (a plane within "
+                f"{MAX_PLANE_TILT_DEG:.0f}° of the cameras' up holding {MIN_PLANE_INLIER_FRACTION:.0%} of them); "
+                "use --gravity cameras"
+            )
+        log.warning("no support plane in the sparse points; up is the cameras' mean up vector")
+    up = camera_up(cameras)
+    return up, support_height_along(up, cameras, settings), "cameras", 0
+
+
+def scale_factor(cameras: Cameras, rotation, origin, settings: AlignmentSettings) -> tuple[float, str]:
+    """Metres per unit of the levelled frame, from the user's measurement (or the default)."""
+    levelled = (cameras.centres - origin) @ rotation.T
+    if settings.baseline is not None:
+        name_a, name_b, metres = settings.baseline
+        index_a, index_b = cameras.index_of(str(name_a)), cameras.index_of(str(name_b))
+        distance = float(np.linalg.norm(levelled[index_a] - levelled[index_b]))
+        if distance < 1e-9:
+            raise FignetError(f"cameras {name_a} and {name_b} are at the same place; choose two that are apart")
+        return float(metres) / distance, f"distance {name_a}–{name_b} = {metres} m"
+    height = settings.camera_height if settings.camera_height is not None else DEFAULT_CAMERA_HEIGHT
+    mean_height = float(levelled[:, 2].mean())
+    if mean_height <= 1e-9:
+        raise FignetError("the cameras are not above the support plane on average; use --gravity cameras or --baseline")
+    source = "mean camera height" + (" (default)" if settings.camera_height is None else "")
+    return height / mean_height, f"{source} = {height} m"
+
+
+def find_alignment(cameras: Cameras, settings: AlignmentSettings = AlignmentSettings()) -> Alignment:
+    """The similarity that puts `cameras` into metres, z up, support plane at z = 0."""
+    if settings.gravity == "none":
+        return Alignment(1.0, np.eye(3), np.zeros(3), "none", "none (kept)")
+    up, on_plane, source, inliers = gravity(cameras, settings)
+    rotation = rotation_between(up, [0.0, 0.0, 1.0])
+    scale, scale_source = scale_factor(cameras, rotation, on_plane, settings)
+    return Alignment(scale, rotation, on_plane, source, scale_source, inliers)
+
+
+def apply_similarity(cameras: Cameras, scale: float, rotation, translation) -> Cameras:
+    """Cameras and points moved by x' = scale · rotation · x + translation (rotations stay rotations)."""
+    c2w = cameras.c2w.copy()
+    c2w[:, :3, :3] = rotation @ cameras.c2w[:, :3, :3]
+    c2w[:, :3, 3] = scale * cameras.centres @ rotation.T + translation
+    points = scale * np.asarray(cameras.points, float).reshape(-1, 3) @ rotation.T + translation
+    return dataclasses.replace(cameras, c2w=c2w, points=points)
+
+
+def align(cameras: Cameras, settings: AlignmentSettings = AlignmentSettings()) -> tuple[Cameras, Alignment]:
+    """`cameras` in metres with z up and the support plane at z = 0, and the alignment used."""
+    alignment = find_alignment(cameras, settings)
+    matrix = alignment.matrix()
+    aligned = apply_similarity(cameras, alignment.scale, alignment.rotation, matrix[:3, 3])
+    return aligned, alignment

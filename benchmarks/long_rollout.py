@@ -16,7 +16,7 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, rollout
-from fignetctl.core.model.scene_data import scene_from_trajectory
+from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
 
 SETTLE_WINDOW = 50
@@ -60,7 +60,7 @@ def main():
     cache = {}
     rows = []
     for key in list(data.trajectories)[: args.n]:
-        scene = scene_from_trajectory(data, key, simulator.config.max_faces_per_object, cache)
+        scene = scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH)
         rows.append(one_trajectory(simulator, scene, args.steps))
         print(json.dumps(rows[-1]), flush=True)
     drifts = np.concatenate([r["drift_last_50_steps_m"] for r in rows])

@@ -12,6 +12,8 @@ from fignetctl.commands import options
 @click.option("--size", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True, help="Network size preset (paper: latent 128, 10 message-passing steps).")
 @click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.2]")
 @click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
+@click.option("--max-static-edge", type=click.FloatRange(min=0, min_open=True), default=0.5, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m).")
+@click.option("--loss", type=click.Choice(["mse", "huber"]), default="mse", show_default=True, help="Loss on the normalised accelerations; huber weighs rare contact spikes less.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")
 @click.option("--checkpoint-every", type=click.IntRange(min=1), default=500, show_default=True)
@@ -21,11 +23,11 @@ from fignetctl.commands import options
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def train(dataset, output, architecture, size, collision_radius, max_faces, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
+def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
     Adam with the learning rate decaying exponentially 1e-3 -> 1e-4 over --steps, noise on
-    the input history, MSE on normalised accelerations of the dynamic mesh nodes. The model
+    the input history, MSE (or --loss huber) on normalised accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it
     with the same weights an uninterrupted run would reach. Runs data-parallel under
     torchrun (see docs/train.md).
@@ -41,8 +43,8 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, step
     if resume and overwrite:
         raise click.UsageError("--resume continues --output, --overwrite replaces it: give one")
     path = options.output_path(output, overwrite or resume)
-    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces)
-    training_config = TrainingConfig(steps=steps, batch_size=batch_size, checkpoint_every=checkpoint_every, seed=seed)
+    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge)
+    training_config = TrainingConfig(steps=steps, batch_size=batch_size, loss=loss, checkpoint_every=checkpoint_every, seed=seed)
     resume_from = path if resume and path.exists() else None
     trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from)
     with options.progress(total=steps, initial=trainer.step, unit="step", desc="train", disable=trainer.rank != 0 or None) as bar:

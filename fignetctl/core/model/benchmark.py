@@ -44,7 +44,7 @@ import torch
 
 from fignetctl import __version__
 from fignetctl.core.model.graph import FACE_FACE, MESH_TO_OBJECT, NODE_NODE, OBJECT_TO_MESH, EdgeSet, MultiGraph
-from fignetctl.core.model.scene_data import scenes_from_file
+from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.scene_graph import build_scene_graph, collision_face_pairs
 from fignetctl.errors import FignetError
 
@@ -383,17 +383,22 @@ def ratios(models: dict) -> dict | None:
     }
 
 
-def scenes_by_max_faces(path, simulators: dict) -> dict:
-    """max_faces_per_object -> the file's scenes decimated that far (each setting loaded once)."""
-    settings = {s.config.max_faces_per_object for s in simulators.values()}
-    return {max_faces: scenes_from_file(path, max_faces) for max_faces in settings}
+def mesh_settings(config):
+    """The part of a SimulatorConfig that decides how a file's meshes are prepared."""
+    return config.max_faces_per_object, config.max_static_edge
+
+
+def scenes_by_mesh_settings(path, simulators: dict) -> dict:
+    """mesh_settings -> the file's scenes prepared that way (each setting loaded once)."""
+    configs = {mesh_settings(s.config): s.config for s in simulators.values()}
+    return {key: scenes_from_file(path, config, EVALUATION_STATIC_REACH) for key, config in configs.items()}
 
 
 def pair_workloads(simulators: dict, scenes: dict, scene_index, frame, noise_seed, device) -> dict:
     """{label: Workload} of one pair, normalisers fitted; every model gets the same noise."""
     workloads = {}
     for label, simulator in simulators.items():
-        scene = scenes[simulator.config.max_faces_per_object][scene_index]
+        scene = scenes[mesh_settings(simulator.config)][scene_index]
         workloads[label] = make_workload(simulator, scene, frame, torch.Generator().manual_seed(noise_seed), device)
         fit_normalizers(workloads[label], device)
     return workloads
@@ -401,10 +406,10 @@ def pair_workloads(simulators: dict, scenes: dict, scene_index, frame, noise_see
 
 def benchmark_file(path, simulators: dict, config: BenchmarkConfig, on_pair=None) -> dict:
     """One data file: sampled pairs, each model's summary, and the FIGNet*/FIGNet ratios."""
-    scenes = scenes_by_max_faces(path, simulators)
+    scenes = scenes_by_mesh_settings(path, simulators)
     first = next(iter(simulators.values()))
     rng = np.random.default_rng(config.seed)
-    pairs = sample_frames(scenes[first.config.max_faces_per_object], config.samples, rng, first.config.graph.collision_radius)
+    pairs = sample_frames(scenes[mesh_settings(first.config)], config.samples, rng, first.config.graph.collision_radius)
     per_pair = {label: [] for label in simulators}
     for pair_index, (scene_index, frame, _) in enumerate(pairs):
         workloads = pair_workloads(simulators, scenes, scene_index, frame, config.seed + pair_index, config.device)
@@ -412,7 +417,7 @@ def benchmark_file(path, simulators: dict, config: BenchmarkConfig, on_pair=None
             per_pair[label].append(result)
         if on_pair is not None:
             on_pair()
-    return file_result(path, scenes[first.config.max_faces_per_object], pairs, simulators, per_pair)
+    return file_result(path, scenes[mesh_settings(first.config)], pairs, simulators, per_pair)
 
 
 def file_result(path, scenes, pairs, simulators, per_pair) -> dict:

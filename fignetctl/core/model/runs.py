@@ -8,7 +8,7 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, rollout
-from fignetctl.core.model.scene_data import scene_from_trajectory
+from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
 
@@ -28,7 +28,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None) 
     key = next(iter(data.trajectories))
     if data.trajectories[key].num_frames < 2:
         raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
-    scene = scene_from_trajectory(data, key, simulator.config.max_faces_per_object)
+    scene = scene_from_trajectory(data, key, simulator.config)
     try:
         positions, quaternions = rollout(simulator, scene, num_steps, on_step)
     except RolloutError as error:
@@ -58,7 +58,7 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None) ->
     data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
     cache = {}
-    scenes = [scene_from_trajectory(data, key, simulator.config.max_faces_per_object, cache) for key in keys]
+    scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
     results = evaluate_scenes(simulator, data, scenes, on_scene)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")

@@ -1,8 +1,16 @@
 """Trajectory files as scenes the simulator reads: concatenated geometry plus poses.
 
-The model sees each mesh decimated (quadric error metrics) to at most `max_faces` faces in the
-same object frame, so poses are unchanged and FIGNet*'s graph stays small; the decimated
-meshes are made once per mesh name.
+The model sees each mesh decimated (quadric error metrics) to at most `max_faces_per_object`
+faces in the same object frame, so poses are unchanged and FIGNet*'s graph stays small. Static
+meshes are then subdivided until no edge is longer than `max_static_edge` metres, so that a
+floor is made of faces the size of an object's rather than of two huge triangles (the
+face–face features and their normaliser see vertex offsets). Prepared meshes are made once
+per mesh name (and scale, for static ones).
+
+When the whole trajectory is known (training, evaluation), static faces farther than
+`static_reach` from every place the dynamic objects visit are dropped: they can never be in a
+collision pair of a ground-truth frame, so the training graphs are exactly those of the whole
+floor, at the cost of a few thousand faces instead of hundreds of thousands.
 """
 
 from __future__ import annotations
@@ -41,28 +49,84 @@ def decimated_mesh(vertices, faces, max_faces):
     return np.asarray(simplified.vertices, np.float64), np.asarray(simplified.faces, np.int64)
 
 
-def scene_from_trajectory(data: TrajectoryFile, trajectory_id, max_faces, mesh_cache=None) -> Scene:
-    """The Scene of one trajectory of a file; `mesh_cache` (name -> mesh) is filled and reused."""
+# Static faces kept around the dynamic objects' reach: in training the collision radius plus
+# the input noise would do; evaluation rollouts may stray from the ground truth, so a
+# prediction must be this far off before it could miss the floor.
+TRAINING_STATIC_REACH = 1.0
+EVALUATION_STATIC_REACH = 5.0
+
+
+def subdivided_mesh(vertices, faces, max_edge):
+    """(V, 3), (F, 3) -> the mesh with every face split (1 -> 4) until no edge is longer than
+    `max_edge`; the surface is unchanged."""
+    from trimesh.remesh import subdivide_to_size
+
+    vertices, faces = subdivide_to_size(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), max_edge, max_iter=64)
+    return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
+
+
+def prepared_mesh(vertices, faces, static, scale, config):
+    """A mesh as the simulator `config` sees it (unscaled, object frame)."""
+    vertices, faces = decimated_mesh(vertices, faces, config.max_faces_per_object)
+    if static and config.max_static_edge is not None:
+        vertices, faces = subdivided_mesh(vertices, faces, config.max_static_edge / float(scale))
+    return vertices, faces
+
+
+def scene_from_trajectory(data: TrajectoryFile, trajectory_id, config, mesh_cache=None, static_reach=None) -> Scene:
+    """The Scene of one trajectory of a file, its meshes prepared for a SimulatorConfig.
+
+    mesh_cache : dict filled and reused across calls (prepared meshes by name)
+    static_reach : metres, or None to keep all static faces (see the module docstring)
+    """
     mesh_cache = {} if mesh_cache is None else mesh_cache
     trajectory = data.trajectories[trajectory_id]
-    for name in trajectory.mesh_names:
-        if name not in mesh_cache:
+    meshes = []
+    for name, static, scale in zip(trajectory.mesh_names, trajectory.static, trajectory.scales):
+        key = (name, float(scale)) if static else name
+        if key not in mesh_cache:
             mesh = data.meshes[name]
-            mesh_cache[name] = decimated_mesh(mesh.vertices, mesh.faces, max_faces)
-    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
-    geometry = scene_geometry(
-        [mesh_cache[name] for name in trajectory.mesh_names],
-        trajectory.scales,
-        trajectory.static,
-        properties,
-    )
+            mesh_cache[key] = prepared_mesh(mesh.vertices, mesh.faces, static, scale, config)
+        meshes.append(mesh_cache[key])
     positions = np.asarray(trajectory.positions, np.float64)
     quaternions = np.asarray(trajectory.quaternions, np.float64)
+    static = np.asarray(trajectory.static, bool)
+    if static_reach is not None:
+        meshes = _crop_static_meshes(meshes, trajectory.scales, static, positions, quaternions, static_reach)
+    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
+    geometry = scene_geometry(meshes, trajectory.scales, static, properties)
     return Scene(str(trajectory_id), geometry, positions, quaternions)
 
 
-def scenes_from_file(path, max_faces) -> list[Scene]:
+def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
+    """Drop the faces of unmoving static meshes whose box is farther than `reach` from the box
+    swept by the dynamic objects (grown by their size) over all frames."""
+    from fignetctl.core.transforms import quat_to_matrix
+
+    dynamic = np.flatnonzero(~static)
+    if len(dynamic) == 0:
+        return meshes
+    sizes = np.array([np.linalg.norm(np.asarray(meshes[o][0]), axis=1).max() * float(scales[o]) for o in dynamic])
+    centres = positions[:, dynamic]
+    lower = (centres - sizes[None, :, None]).reshape(-1, 3).min(axis=0) - reach
+    upper = (centres + sizes[None, :, None]).reshape(-1, 3).max(axis=0) + reach
+    cropped = list(meshes)
+    for o in np.flatnonzero(static):
+        if not (np.allclose(positions[:, o], positions[0, o]) and np.allclose(quaternions[:, o], quaternions[0, o])):
+            continue  # a moving static object keeps its whole mesh
+        vertices, faces = meshes[o]
+        world = np.asarray(vertices) * float(scales[o]) @ quat_to_matrix(quaternions[0, o]).T + positions[0, o]
+        triangles = world[faces]
+        keep = ((triangles.max(axis=1) >= lower) & (triangles.min(axis=1) <= upper)).all(axis=1)
+        if keep.all():
+            continue
+        used, new_faces = np.unique(faces[keep], return_inverse=True)
+        cropped[o] = (np.asarray(vertices)[used], new_faces.reshape(-1, 3))
+    return cropped
+
+
+def scenes_from_file(path, config, static_reach=None) -> list[Scene]:
     """Every trajectory of a file as a Scene (needs at least 3 frames each for training)."""
     data = read_trajectories(path)
     cache = {}
-    return [scene_from_trajectory(data, key, max_faces, cache) for key in data.trajectories]
+    return [scene_from_trajectory(data, key, config, cache, static_reach) for key in data.trajectories]

@@ -50,6 +50,11 @@ class SimulatorConfig:
     """Collision radius and FIGNet (surface edges) or FIGNet* (none)."""
     max_faces_per_object: int | None = 256
     """Meshes are decimated (quadric error) to at most this many faces; None keeps them."""
+    max_static_edge: float | None = 0.5
+    """Static meshes are subdivided until no edge is longer than this (m); None keeps them.
+    The face–face features hold each face's vertices relative to its closest point, so one
+    80 m floor triangle beside 0.1 m object triangles would set the normaliser's scale to
+    tens of metres and hide the object's contact geometry (models before 0.2 used None)."""
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
@@ -61,6 +66,7 @@ class SimulatorConfig:
             network=NetworkConfig(**values["network"]),
             graph=GraphConfig(**values["graph"]),
             max_faces_per_object=values["max_faces_per_object"],
+            max_static_edge=values.get("max_static_edge"),  # absent: a model trained without
         )
 
 

@@ -26,7 +26,7 @@ from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import sample_rigid_pose_noise
 from fignetctl.core.model.scene_graph import build_scene_graph
-from fignetctl.core.model.scene_data import scenes_from_file
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
 from fignetctl.core.transforms import quat_from_axis_angle, quat_multiply
 from fignetctl.errors import FignetError
@@ -47,6 +47,10 @@ class TrainingConfig:
     """Std (m) of the per-object translation jitter on frame t."""
     noise_rotation_std: float = 0.003
     """Std (rad) of the per-object rotation jitter on frame t."""
+    loss: str = "mse"
+    """'mse' (the paper) or 'huber' on the normalised accelerations."""
+    huber_delta: float = 1.0
+    """Where the Huber loss turns from quadratic to linear, in target standard deviations."""
     normalizer_accumulation_steps: int = 500
     """Normaliser statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
@@ -122,7 +126,7 @@ class Trainer:
         targets = torch.cat([e[1] for e in examples]).to(self.device)
         normalized_targets = self.simulator.inverse_postprocess(targets, accumulate)
         predictions = self.model(graph, accumulate)[rows]
-        loss = torch.mean((predictions - normalized_targets) ** 2)
+        loss = regression_loss(predictions, normalized_targets, self.config)
         self._apply(loss)
         return float(loss.detach())
 
@@ -178,6 +182,15 @@ class Trainer:
         distributed.barrier()
 
 
+def regression_loss(predictions, targets, config: TrainingConfig) -> torch.Tensor:
+    """Mean loss over nodes and components of the normalised accelerations."""
+    if config.loss == "huber":
+        return torch.nn.functional.huber_loss(predictions, targets, delta=config.huber_delta)
+    if config.loss == "mse":
+        return torch.mean((predictions - targets) ** 2)
+    raise FignetError(f"unknown loss {config.loss!r}: choose 'mse' or 'huber'")
+
+
 def _dynamic_rows(scene_graphs) -> torch.Tensor:
     """Indices, in the batched graph, of the dynamic vertex nodes of each scene graph."""
     rows, offset = [], 0
@@ -202,14 +215,14 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
-    scenes = scenes_from_file(dataset_path, simulator.config.max_faces_per_object)
+    scenes = scenes_from_file(dataset_path, simulator.config, TRAINING_STATIC_REACH)
     trainer = Trainer(scenes, simulator, training_config, device, data_hash)
     if state is not None:
         trainer.load_state(state)
     return trainer
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256) -> SimulatorConfig:
+def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=0.5) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
@@ -217,7 +230,7 @@ def simulator_config_for(architecture, size, collision_radius=None, max_faces=25
     graph = GraphConfig(surface_edges=architecture == "fignet")
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
-    return SimulatorConfig(network=PRESETS[size], graph=graph, max_faces_per_object=max_faces)
+    return SimulatorConfig(network=PRESETS[size], graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge)
 
 
 def write_loss_csv(path, history) -> None:

@@ -26,7 +26,7 @@ def test_bundled_checkpoints_are_small_and_differ_only_in_surface_edges():
 def test_default_model_rolls_a_box_dropped_on_the_floor_out_finitely():
     simulator = load_model()
     data = box_drop_file(frames=3, dt=1 / 30, height=0.8)
-    scene = scene_from_trajectory(data, "00000", simulator.config.max_faces_per_object)
+    scene = scene_from_trajectory(data, "00000", simulator.config)
     positions, quaternions = rollout(simulator, scene, 30)
     assert np.isfinite(positions).all() and np.isfinite(quaternions).all()
     assert np.abs(positions[:, 1] - positions[1, 1]).max() < 5.0  # nothing flies off

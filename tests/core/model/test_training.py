@@ -116,3 +116,24 @@ def test_predicted_motion_does_not_change_when_the_whole_scene_moves(box_file):
     there = simulator.step(scene.geometry, positions + offset, quaternions)
     np.testing.assert_allclose(there[0] - offset, here[0], atol=1e-4)  # float32 features: 0.1 mm at 1 km
     np.testing.assert_allclose(there[1], here[1], atol=1e-5)
+
+
+def test_huber_loss_is_quadratic_near_zero_and_linear_for_spikes():
+    from fignetctl.core.model.training import regression_loss
+    from fignetctl.errors import FignetError
+
+    config = TrainingConfig(loss="huber", huber_delta=1.0)
+    zero = torch.zeros(4, 3)
+    small, spike = torch.full((4, 3), 0.1), torch.full((4, 3), 10.0)
+    assert regression_loss(small, zero, config).item() == pytest.approx(0.5 * 0.01)
+    assert regression_loss(spike, zero, config).item() == pytest.approx(10.0 - 0.5)
+    assert regression_loss(spike, zero, TrainingConfig()).item() == pytest.approx(100.0)
+    with pytest.raises(FignetError, match="unknown loss"):
+        regression_loss(small, zero, TrainingConfig(loss="l1"))
+
+
+def test_tiny_model_overfits_with_the_huber_loss(box_file):
+    trainer = make_trainer(box_file, TINY, _config(steps=300, loss="huber", noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20))
+    trainer.run()
+    losses = [h["loss"] for h in trainer.history]
+    assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 10

@@ -1,0 +1,77 @@
+"""How trajectory files become the simulator's scenes: decimation, subdivision of static
+meshes, and the crop of static faces out of reach (which must change no graph)."""
+
+import dataclasses
+
+import numpy as np
+
+from fignetctl.core.model.scene_data import scene_from_trajectory, subdivided_mesh
+from fignetctl.core.model.scene_graph import build_scene_graph
+from fignetctl.core.model.simulator import SimulatorConfig
+from tests.conftest import box_drop_file
+
+
+def edge_lengths(vertices, faces):
+    triangles = vertices[faces]
+    return np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2)
+
+
+def area(vertices, faces):
+    triangles = vertices[faces]
+    return 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1).sum()
+
+
+def test_subdivision_bounds_edges_and_keeps_the_surface():
+    vertices = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    new_vertices, new_faces = subdivided_mesh(vertices, faces, 0.5)
+    assert edge_lengths(new_vertices, new_faces).max() <= 0.5
+    assert np.isclose(area(new_vertices, new_faces), 400.0)
+    assert np.allclose(new_vertices[:, 2], 0.0)
+    normals = np.cross(*(new_vertices[new_faces[:, k]] - new_vertices[new_faces[:, 0]] for k in (1, 2)))
+    assert (normals[:, 2] > 0).all()  # orientation kept
+
+
+def test_static_meshes_are_subdivided_in_metres_and_dynamic_ones_are_not():
+    data = box_drop_file(frames=4, height=0.8)
+    data.trajectories["00000"].scales[0] = 2.0  # the floor is scaled: the bound is in metres
+    scene = scene_from_trajectory(data, "00000", SimulatorConfig(max_static_edge=0.5))
+    geometry = scene.geometry
+    floor = geometry.face_object == 0
+    assert edge_lengths(geometry.rest_vertices, geometry.faces[floor]).max() <= 0.5 + 1e-9
+    assert floor.sum() > 1000
+    assert (geometry.face_object == 1).sum() == 12
+    untouched = scene_from_trajectory(data, "00000", SimulatorConfig(max_static_edge=None))
+    assert (untouched.geometry.face_object == 0).sum() == 2
+
+
+def test_the_crop_of_static_faces_changes_no_graph_of_the_trajectory():
+    data = box_drop_file(frames=40, height=1.2, dt=1 / 30)
+    config = SimulatorConfig(max_static_edge=0.5)
+    full = scene_from_trajectory(data, "00000", config)
+    cropped = scene_from_trajectory(data, "00000", config, static_reach=1.0)
+    assert (cropped.geometry.face_object == 0).sum() < (full.geometry.face_object == 0).sum() / 10
+    contacts = 0
+    for t in range(1, 39):
+        graphs = [
+            build_scene_graph(s.geometry, s.positions[t - 1 : t + 2], s.quaternions[t - 1 : t + 2], config.graph).graph
+            for s in (full, cropped)
+        ]
+        a, b = graphs
+        assert a.node_features.shape == b.node_features.shape
+        # same nodes up to the order of static vertices: compare sorted rows
+        assert np.array_equal(np.sort(a.node_features.numpy(), axis=0), np.sort(b.node_features.numpy(), axis=0))
+        for name in a.edge_sets:
+            fa, fb = a.edge_sets[name].features.numpy(), b.edge_sets[name].features.numpy()
+            assert fa.shape == fb.shape
+            assert np.array_equal(np.sort(fa, axis=0), np.sort(fb, axis=0)), name
+        contacts += a.edge_sets["face_face"].num_edges > 0
+    assert contacts > 5  # the box does reach the floor
+
+
+def test_models_saved_before_the_setting_keep_their_meshes():
+    values = dataclasses.asdict(SimulatorConfig())
+    del values["max_static_edge"]
+    import json
+
+    assert SimulatorConfig.from_json(json.dumps(values)).max_static_edge is None

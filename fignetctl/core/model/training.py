@@ -49,7 +49,7 @@ class TrainingConfig:
     """Std (rad) of the per-object rotation jitter on frame t."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalised accelerations."""
-    huber_delta: float = 1.0
+    huber_delta: float = 0.5
     """Where the Huber loss turns from quadratic to linear, in target standard deviations."""
     normalizer_accumulation_steps: int = 500
     """Normaliser statistics are gathered over the first this many steps, then frozen."""

@@ -26,6 +26,8 @@ Output folder (written to a temporary sibling, then renamed into place):
     ground_truth/scene.json        objects (id, name, role, movable, urdf, mesh file, scale,
                                    position, quaternion wxyz), bounds, camera path, settings
     prompts.json                   per movable object, point prompts {image, u, v} in >= 2 views
+    measurements.json              camera_height_m: the cameras' mean height above the table
+                                   top, as a user would measure it (capture-poses --camera-height)
 
 Pixel convention: pixel (u, v) (column, row, from the top left) is the ray through the image
 point (u + 0.5, v + 0.5) of K, as in COLMAP and nerfstudio. TinyRenderer samples a pixel at its
@@ -541,6 +543,10 @@ def _write_views(folder: Path, config, objects, cameras, renders) -> list[str]:
     for item in objects:
         write_obj(ground_truth / "objects" / f"{item.name}.obj", item.vertices, item.faces)
     _write_json(folder / "prompts.json", prompts_document(objects, masks, names, cameras["eyes"], config))
+    # What a user would measure with a tape: the cameras' mean height above the table top
+    # (z = 0), for capture-poses --camera-height.
+    _write_json(folder / "measurements.json", {"format": "fignetctl.measurements", "format_version": 1,
+                                               "camera_height_m": float(np.mean(cameras["eyes"][:, 2]))})
     return names
 
 

@@ -197,3 +197,11 @@ def test_video_frame_k_times_step_is_view_k(tiny_capture):
         difference = np.abs(frames[2 * k] - views[k]).mean()
         neighbour = np.abs(frames[2 * k + (1 if k < 2 else -1)] - views[k]).mean()
         assert difference < 15 and difference < 0.5 * neighbour
+
+
+def test_the_measured_camera_height_is_the_cameras_mean_height_above_the_table(tiny_capture):
+    out, _ = tiny_capture
+    cameras, *_ = load(out)
+    measured = json.loads((out / "measurements.json").read_text())["camera_height_m"]
+    assert measured == pytest.approx(cameras.centres[:, 2].mean(), abs=1e-6)
+    assert 0.2 < measured < 1.0

@@ -23,7 +23,12 @@ COMMANDS = {
     "evaluate": "evaluate:evaluate",
     "bench-memory": "bench_memory:bench_memory",
     "render-views": "render_views:render_views",
+    "fit-nerf": "fit_nerf:fit_nerf",
+    "render-nerf": "fit_nerf:render_nerf",
     "capture-poses": "capture_poses:capture_poses",
+    "extract-mesh": "extract_mesh:extract_mesh",
+    "build-graph": "build_graph:build_graph",
+    "rerender": "rerender:rerender",
 }
 
 log = logging.getLogger("fignetctl")
@@ -65,7 +70,12 @@ _SUMMARIES = {
     "evaluate": "Paper metrics of a model against ground truth, with baselines.",
     "bench-memory": "Edges, runtime and peak memory of FIGNet vs FIGNet* (paper Table 1).",
     "render-views": "The bundled capture: a textured tabletop scene rendered from an orbit.",
+    "fit-nerf": "Fit a radiance field (nerf.pt) to posed images (cameras.npz).",
+    "render-nerf": "Render colour and z-depth PNGs of cameras from a nerf.pt.",
     "capture-poses": "Camera poses (metres, z up) of images or a video: cameras.npz.",
+    "extract-mesh": "Object and environment meshes from a NeRF and point prompts: object.obj, volume.npz.",
+    "build-graph": "A 2-frame scene (a drop) from extracted meshes, for rollout.",
+    "rerender": "A rollout re-rendered through the NeRF by ray bending: PNG frames and an mp4.",
 }
 
 

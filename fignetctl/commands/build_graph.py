@@ -1,0 +1,61 @@
+"""`fignetctl build-graph`: extracted meshes + physical properties + a drop -> a 2-frame scene."""
+
+from pathlib import Path
+
+import click
+
+from fignetctl.commands import options
+from fignetctl.commands.extract_mesh import _floats
+
+
+@click.command("build-graph")
+@click.argument("volume_path", metavar="VOLUME", type=click.Path(dir_okay=False))
+@click.option("--object", "object_path", type=click.Path(dir_okay=False), default=None, help="Active mesh.  [default: VOLUME's object_mesh beside it]")
+@click.option("--environment", "environment_path", type=click.Path(dir_okay=False), default=None, help="Passive mesh.  [default: VOLUME's environment_mesh]")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Scene trajectory file (.h5) to write.")
+@click.option("--drop-height", type=float, default=0.1, show_default=True, help="Start this far above the object's rest position (world units).")
+@click.option("--delta-z", type=click.FloatRange(min=0), default=0.01, show_default=True, help="Δz: the history frame is this much higher (fall speed Δz per frame).")
+@click.option("--start", default=None, callback=_floats(3), metavar="X,Y,Z", help="Start position of the object's origin instead of --drop-height.")
+@click.option("--velocity", default=None, callback=_floats(3), metavar="VX,VY,VZ", help="Start velocity (world units / s) instead of Δz per frame.")
+@click.option("--duplicate", is_flag=True, help="Simulate a copy at the start; the original stays in place as a static object.")
+@click.option("--active-mass", type=click.FloatRange(min=0, min_open=True), default=1e-3, show_default=True)
+@click.option("--active-friction", type=click.FloatRange(min=0), default=0.5, show_default=True)
+@click.option("--active-restitution", type=click.FloatRange(min=0), default=0.5, show_default=True)
+@click.option("--passive-friction", type=click.FloatRange(min=0), default=0.5, show_default=True)
+@click.option("--passive-restitution", type=click.FloatRange(min=0), default=0.3, show_default=True)
+@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=1 / 30, show_default="1/30, the bundled models' frame time", help="Seconds between frames.")
+@options.overwrite_option
+def build_graph(volume_path, object_path, environment_path, output, drop_height, delta_z, start, velocity, duplicate,
+                active_mass, active_friction, active_restitution, passive_friction, passive_restitution, dt, overwrite):
+    """Build the 2-frame scene (t-1, t) that `fignetctl rollout` simulates, from the meshes and
+    volume.npz of `extract-mesh` (paper, "Building the Graph").
+
+    The object is active (dynamic), the environment passive (static); default properties are
+    the paper's (active mass 1e-3, friction 0.5, restitution 0.5; passive friction 0.5,
+    restitution 0.3). The history is a drop: the object --drop-height above its rest position,
+    and Δz higher one frame earlier; or --start and --velocity. See docs/build-graph.md.
+
+    \b
+    Example:
+      fignetctl build-graph ball/volume.npz --drop-height 0.1 -o scene.h5
+      fignetctl rollout scene.h5 --steps 60 -o rollout.h5
+    """
+    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.scene_building import Properties, build_scene, drop_history
+    from fignetctl.core.trajectory import write_trajectories
+    from fignetctl.core.volume import read_volume
+
+    path = options.output_path(output, overwrite)
+    volume = read_volume(volume_path)
+    folder = Path(volume_path).parent
+    obj = load_obj(object_path or folder / volume.object_mesh)
+    environment = load_obj(environment_path or folder / volume.environment_mesh)
+    positions = drop_history(volume.origin, drop_height, delta_z, start, velocity, dt)
+    scene = build_scene(
+        (obj.vertices, obj.faces), (environment.vertices, environment.faces), volume.origin, positions,
+        Properties(active_mass, active_friction, active_restitution), Properties(0.0, passive_friction, passive_restitution),
+        duplicate, volume.environment_origin, dt,
+    )
+    write_trajectories(path, scene)
+    click.echo(f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}", err=True)
+    click.echo(str(path))

@@ -1,0 +1,396 @@
+"""Meshes of an object and its environment from a density field (paper, "Mesh Extraction").
+
+masks in N views + depth -> 3D points (x = z · K⁻¹ · (u, v, 1)) -> a robust box V_o -> density on
+a regular grid in V_o -> marching cubes at σ_thr -> largest component(s), outward faces ->
+quadric-error decimation to n_f faces. The environment is the same procedure on a box around
+and below V_o with the object's box cut out.
+
+The density is any callable `density(points (P, 3) numpy) -> (P,)`, e.g. `NerfModel.density`
+or an analytic function in the tests. The grid is padded with one layer of zero density, so
+every surface is closed: where the box cuts through matter (the object's unseen bottom above
+the support, the environment's sides and bottom) the mesh gets a flat cap on the box face.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+
+from fignetctl.errors import FignetError
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExtractionSettings:
+    """How meshes are made from the density field."""
+
+    resolution: int = 96
+    """Grid vertices along the longest side of the box (voxels are cubic)."""
+    threshold: float = 50.0
+    """σ_thr (1 / world unit): the iso-level of marching cubes."""
+    faces: int = 1000
+    """n_f: faces of each mesh after quadric decimation (0: no decimation)."""
+    smoothing: float = 0.5
+    """Gaussian blur of the density grid (voxels) before marching cubes (0: none); it removes
+    voxel stair-steps, which otherwise stop the decimation short of n_f."""
+    padding: float = 0.1
+    """V_o is the points' robust box grown on each side by this fraction of its longest side."""
+    trim_percent: float = 2.0
+    """Unprojected points below this percentile / above 100 minus it (per axis) are outliers."""
+    keep_fraction: float = 0.1
+    """Connected components smaller than this fraction of the largest (by volume) are dropped."""
+    support_clearance_voxels: float = 1.0
+    """The object's box starts this many voxels above the support surface found under it (the
+    unseen bottom reaches down to there and is capped flat)."""
+    passive_margin: float = 0.1
+    """The environment box extends this far (world units) beyond V_o horizontally."""
+    passive_below: float = 0.05
+    """... and this far below the support surface under the object."""
+    passive_above: float | None = None
+    """... and this far above it (None: V_o's height)."""
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# -- from masks to a box -------------------------------------------------------------------------
+
+
+def unproject(depth, mask, K, c2w, pixel_offset=0.0):
+    """World points of masked pixels.
+
+    depth : (H, W) z-depth; mask : (H, W) bool; K : (3, 3); c2w : (4, 4) OpenCV
+    pixel_offset : 0 when pixel (u, v) is the ray through image point (u, v) (the NeRF's
+        convention), 0.5 for the capture's ground truth (u + 0.5, v + 0.5)
+    returns (P, 3) float64 (pixels with no finite positive depth are skipped)
+    """
+    depth = np.asarray(depth, np.float64)
+    valid = np.asarray(mask, bool) & np.isfinite(depth) & (depth > 0)
+    v, u = np.nonzero(valid)
+    pixels = np.stack([u + pixel_offset, v + pixel_offset, np.ones_like(u, dtype=np.float64)], axis=1)
+    camera = depth[v, u, None] * (pixels @ np.linalg.inv(np.asarray(K, np.float64)).T)
+    c2w = np.asarray(c2w, np.float64)
+    return camera @ c2w[:3, :3].T + c2w[:3, 3]
+
+
+def robust_box(points, trim_percent=2.0):
+    """(P, 3) -> (2, 3) box of the points between the trim percentiles, after dropping points
+    farther from the median than 4 times their median distance to it."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) < 4:
+        raise FignetError(f"the masks give {len(points)} 3D points; an object needs more (a bigger mask or a depth at the prompt)")
+    distance = np.linalg.norm(points - np.median(points, axis=0), axis=1)
+    kept = points[distance <= 4.0 * max(np.median(distance), 1e-12)]
+    return np.stack([np.percentile(kept, trim_percent, axis=0), np.percentile(kept, 100 - trim_percent, axis=0)])
+
+
+def check_views_agree(boxes, names):
+    """boxes : list of (2, 3) per-view boxes. Each view's box must overlap the union of the
+    others' (the masks show one object in 3D); a FignetError names the view that does not."""
+    if len(boxes) < 2:
+        return
+    boxes = np.asarray(boxes)
+    for i, box in enumerate(boxes):
+        others = np.delete(boxes, i, axis=0)
+        low, high = others[:, 0].min(0), others[:, 1].max(0)
+        size = max((high - low).max(), (box[1] - box[0]).max())
+        gap = np.maximum(np.maximum(low - box[1], box[0] - high), 0.0).max()
+        if gap > 0.25 * size:
+            raise FignetError(
+                f"the mask in {names[i]} does not overlap the other views' masks in 3D (a gap of {gap:.3g} world units); "
+                "are the prompts on the same object?"
+            )
+
+
+def padded_box(box, padding):
+    """Grow a (2, 3) box by `padding` times its longest side on each side."""
+    box = np.asarray(box, np.float64)
+    grow = padding * (box[1] - box[0]).max()
+    return np.stack([box[0] - grow, box[1] + grow])
+
+
+# -- density on a grid -------------------------------------------------------------------------
+
+
+def grid_axes(lower, upper, resolution):
+    """Per-axis vertex coordinates of a grid with cubic voxels and `resolution` vertices along
+    the box's longest side (starting at `lower`; the box grows up to a whole number of voxels)."""
+    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    voxel = (upper - lower).max() / (max(int(resolution), 2) - 1)
+    counts = np.maximum(np.ceil((upper - lower) / voxel - 1e-6).astype(int) + 1, 2)
+    return [lower[i] + voxel * np.arange(counts[i]) for i in range(3)], voxel
+
+
+def sample_density(density, axes, chunk=262144):
+    """σ on the grid of `axes` (3 arrays) -> (X, Y, Z) float32, by calling density in chunks."""
+    shape = tuple(len(a) for a in axes)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    values = np.concatenate([np.asarray(density(points[i : i + chunk]), np.float32).reshape(-1) for i in range(0, len(points), chunk)])
+    values = np.nan_to_num(values, nan=0.0, posinf=np.float32(1e30), neginf=0.0)
+    return values.reshape(shape)
+
+
+def support_height(density, lower, upper, threshold, resolution, depth_below):
+    """z of the highest surface under the box's footprint, from vertical density profiles on
+    the ring just outside the footprint (median over the ring); None if there is none.
+
+    lower, upper : (3,) the box; profiles run from lower z − depth_below up to upper z
+    """
+    lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
+    size = (upper - lower)[:2].max()
+    step = size / max(resolution // 2, 4)
+    ring = _footprint_ring(lower[:2] - 0.05 * size, upper[:2] + 0.05 * size, 24)
+    z = np.arange(lower[2] - depth_below, upper[2] + step, step / 2)
+    points = np.concatenate([np.repeat(ring, len(z), axis=0), np.tile(z, len(ring))[:, None]], axis=1)
+    solid = (np.asarray(density(points)).reshape(len(ring), len(z)) > threshold)
+    heights = [z[np.nonzero(column)[0].max()] for column in solid if column.any()]
+    if len(heights) < len(ring) // 3:
+        return None
+    return float(np.median(heights))
+
+
+def _footprint_ring(low, high, per_side):
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    (x0, y0), (x1, y1) = low, high
+    sides = [
+        np.stack([x0 + t * (x1 - x0), np.full_like(t, y0)], 1),
+        np.stack([np.full_like(t, x1), y0 + t * (y1 - y0)], 1),
+        np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], 1),
+        np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], 1),
+    ]
+    return np.concatenate(sides)
+
+
+# -- grid to mesh ------------------------------------------------------------------------------
+
+
+def marching_cubes(values, axes, threshold):
+    """Closed surface at σ = threshold of a (X, Y, Z) grid: the grid is padded with zero
+    density so the surface is capped where matter reaches the box. Returns vertices (V, 3) in
+    world units and faces (F, 3) int64 facing outward (positive signed volume)."""
+    from skimage import measure
+
+    values = np.asarray(values, np.float32)
+    if not np.isfinite(threshold) or threshold <= 0:
+        raise FignetError(f"the density threshold must be a positive number, got {threshold}")
+    if values.max() <= threshold:
+        raise FignetError(
+            f"no density above the threshold {threshold:g} in the volume (max {values.max():.3g}); "
+            "lower --threshold or check the box / prompts"
+        )
+    padded = np.pad(values, 1, constant_values=0.0)
+    try:
+        vertices, faces, _, _ = measure.marching_cubes(padded, level=float(threshold))
+    except (ValueError, RuntimeError) as error:
+        raise FignetError(f"marching cubes found no surface ({error})") from None
+    voxel = axes[0][1] - axes[0][0]
+    origin = np.array([a[0] for a in axes]) - voxel
+    vertices = origin + vertices * voxel
+    faces = faces.astype(np.int64)
+    if signed_volume(vertices, faces) < 0:
+        faces = faces[:, ::-1]
+    return vertices, faces
+
+
+def signed_volume(vertices, faces):
+    """Signed volume of a closed triangle mesh (positive when faces are counter-clockwise
+    seen from outside). vertices : (V, 3); faces : (F, 3)."""
+    triangles = np.asarray(vertices, np.float64)[np.asarray(faces)]
+    return float(np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])).sum() / 6.0)
+
+
+def keep_large_components(vertices, faces, keep_fraction=0.1):
+    """Drop connected components whose |volume| (area for open pieces) is below `keep_fraction`
+    of the largest's; each kept component faces outward. Returns a trimesh.Trimesh."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices, faces, process=True)
+    parts = mesh.split(only_watertight=False)
+    if len(parts) == 0:
+        raise FignetError("marching cubes found no surface")
+    sizes = np.array([abs(signed_volume(p.vertices, p.faces)) if p.is_watertight else 0.0 for p in parts])
+    if sizes.max() <= 0:
+        sizes = np.array([p.area for p in parts])
+    kept = [p for p, s in zip(parts, sizes) if s >= keep_fraction * sizes.max()]
+    for part in kept:
+        if signed_volume(part.vertices, part.faces) < 0:
+            part.invert()
+    log.info("kept %d of %d connected components", len(kept), len(parts))
+    return trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
+
+
+def decimate(mesh, faces):
+    """Quadric-error decimation (Garland–Heckbert) to at most `faces` faces (0: unchanged)."""
+    if not faces or len(mesh.faces) <= faces:
+        return mesh
+    simplified = mesh.simplify_quadric_decimation(face_count=int(faces))
+    simplified.remove_unreferenced_vertices()
+    if len(simplified.faces) == 0:
+        raise FignetError(f"decimation to {faces} faces left nothing; ask for more faces")
+    if signed_volume(simplified.vertices, simplified.faces) < 0:
+        simplified.invert()
+    return simplified
+
+
+def mesh_from_density(density, lower, upper, settings: ExtractionSettings, exclude=None):
+    """The decimated surface of `density` inside the box (lower, upper).
+
+    exclude : optional (2, 3) box whose density is set to zero (the object, for the environment)
+    returns trimesh.Trimesh in world units
+    """
+    axes, _ = grid_axes(lower, upper, settings.resolution)
+    values = sample_density(density, axes)
+    if settings.smoothing > 0:
+        from scipy import ndimage
+
+        values = ndimage.gaussian_filter(values, settings.smoothing, mode="nearest")
+    if exclude is not None:
+        inside = [(a >= exclude[0][i]) & (a <= exclude[1][i]) for i, a in enumerate(axes)]
+        values[np.ix_(*inside)] = 0.0
+    vertices, faces = marching_cubes(values, axes, settings.threshold)
+    mesh = keep_large_components(vertices, faces, settings.keep_fraction)
+    return decimate(mesh, settings.faces)
+
+
+# -- the whole extraction ----------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Extraction:
+    """Result of `extract_object`: meshes in world units and the boxes."""
+
+    object_mesh: object  # trimesh.Trimesh, world coordinates
+    environment_mesh: object  # trimesh.Trimesh, world coordinates
+    lower: np.ndarray
+    upper: np.ndarray
+    origin: np.ndarray  # the object's centre of mass (its frame origin)
+    passive_lower: np.ndarray
+    passive_upper: np.ndarray
+    support_z: float | None
+
+
+def object_box_from_points(points_per_view, names, settings: ExtractionSettings):
+    """Per-view 3D points of the masks -> V_o (2, 3), padded; checks the views agree."""
+    boxes = [robust_box(p, settings.trim_percent) for p in points_per_view]
+    check_views_agree(boxes, names)
+    return padded_box(robust_box(np.concatenate(points_per_view), settings.trim_percent), settings.padding)
+
+
+def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
+    """Object and environment meshes for the object in `box` (2, 3), e.g. from
+    `object_box_from_points` or a user's --box."""
+    lower, upper = np.array(box[0], np.float64), np.array(box[1], np.float64)
+    _, voxel = grid_axes(lower, upper, settings.resolution)
+    support = support_height(density, lower, upper, settings.threshold, settings.resolution, settings.passive_below + (upper - lower)[2])
+    if support is not None and support + settings.support_clearance_voxels * voxel < upper[2]:
+        # The masks see the object from above: its bottom is hidden, so V_o reaches down to the
+        # support (and no lower, or the support's surface would join the object).
+        lower[2] = support + settings.support_clearance_voxels * voxel
+    obj = mesh_from_density(density, lower, upper, settings)
+    passive_lower, passive_upper = passive_box(lower, upper, support, settings)
+    exclude = np.stack([lower - [0, 0, 0.5 * voxel], upper + voxel])
+    environment = mesh_from_density(density, passive_lower, passive_upper, settings, exclude=exclude)
+    origin = np.asarray(obj.center_mass if obj.is_watertight else obj.bounds.mean(axis=0), np.float64)
+    return Extraction(obj, environment, lower, upper, origin, passive_lower, passive_upper, support)
+
+
+def passive_box(lower, upper, support, settings: ExtractionSettings):
+    """The environment's box: V_o's footprint grown by passive_margin, from passive_below under
+    the support surface (V_o's bottom where none was found) to passive_above over it."""
+    base = lower[2] if support is None else support
+    above = (upper - lower)[2] if settings.passive_above is None else settings.passive_above
+    margin = settings.passive_margin
+    passive_lower = np.array([lower[0] - margin, lower[1] - margin, base - settings.passive_below])
+    passive_upper = np.array([upper[0] + margin, upper[1] + margin, base + max(above, 1e-6)])
+    return passive_lower, passive_upper
+
+
+# -- views, prompts and files ------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class View:
+    """One prompted or masked view: what segmentation and unprojection need.
+
+    depth : (H, W) z-depth; opacity : (H, W) or None; image : (H, W, 3) uint8 RGB or None
+    prompts : list of (u, v) pixels on the object; mask : (H, W) bool or None (given by the user)
+    pixel_offset : 0 for NeRF renderings (ray through (u, v)), 0.5 for the capture's GT depth
+    """
+
+    name: str
+    K: np.ndarray
+    c2w: np.ndarray
+    depth: np.ndarray
+    opacity: np.ndarray | None = None
+    image: np.ndarray | None = None
+    prompts: list = dataclasses.field(default_factory=list)
+    mask: np.ndarray | None = None
+    pixel_offset: float = 0.0
+
+
+def view_masks(views, segmentation_settings=None):
+    """Fill each view's mask from its prompts (union over the view's prompts); returns views."""
+    from fignetctl.core.segmentation import SegmentationSettings, check_prompt, prompt_mask
+
+    settings = segmentation_settings or SegmentationSettings()
+    for view in views:
+        if view.mask is not None:
+            continue
+        height, width = view.depth.shape
+        mask = np.zeros((height, width), bool)
+        for u, v in view.prompts:
+            check_prompt(u, v, width, height, view.depth, view.opacity, settings, where=f"prompt {view.name}:{u},{v}")
+            mask |= prompt_mask(view.image, view.depth, view.K, u, v, settings, view.pixel_offset)
+        view.mask = mask
+    return views
+
+
+def object_box_from_views(views, settings: ExtractionSettings):
+    """V_o (2, 3) from the masked views (unprojected with their depth, trimmed, padded)."""
+    points, names = [], []
+    for view in views:
+        mask = view.mask if view.opacity is None else view.mask & (view.opacity >= 0.5)
+        if not mask.any():
+            raise FignetError(f"the mask of {view.name} is empty (or covers only empty space)")
+        points.append(unproject(view.depth, mask, view.K, view.c2w, view.pixel_offset))
+        names.append(view.name)
+    return object_box_from_points(points, names, settings)
+
+
+def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None):
+    """object.obj (vertices relative to the origin), environment.obj (world), volume.npz."""
+    from pathlib import Path
+
+    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.volume import Volume, write_volume
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    object_mesh = extraction.object_mesh.copy()
+    object_mesh.apply_translation(-extraction.origin)
+    for name, mesh in (("object.obj", object_mesh), ("environment.obj", extraction.environment_mesh)):
+        with atomic_path(out_dir / name) as tmp:
+            mesh.export(tmp, file_type="obj", include_normals=False, include_texture=False)
+    volume = Volume(
+        lower=extraction.lower, upper=extraction.upper, origin=extraction.origin,
+        passive_lower=extraction.passive_lower, passive_upper=extraction.passive_upper,
+        settings={**settings.to_dict(), **(extra_settings or {}), "support_z": extraction.support_z},
+    )
+    write_volume(out_dir / "volume.npz", volume)
+    return volume
+
+
+def load_obj(path):
+    """An .obj file -> trimesh.Trimesh (vertices and faces only, as written); FignetError if unusable."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, file_type="obj", force="mesh", process=False)
+    except Exception as error:  # trimesh raises many types for damaged files
+        raise FignetError(f"{path}: not a readable .obj mesh ({type(error).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise FignetError(f"{path}: holds no triangles")
+    return mesh

@@ -1,0 +1,99 @@
+"""Settings of a radiance-field fit: one frozen dataclass, two presets."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+
+@dataclasses.dataclass(frozen=True)
+class NerfConfig:
+    """How a radiance field is built and trained (written into every nerf.pt)."""
+
+    max_image_side: int = 200
+    """Images are downscaled (INTER_AREA, K scaled with them) so the longer side is at most this."""
+    holdout_every: int = 8
+    """Views 0, k, 2k, ... are held out for evaluation (0: train on every view)."""
+    grid_resolution_initial: int = 48
+    """Density-grid vertices along the box's longest side at the start (voxels stay cubic)."""
+    grid_resolution: int = 128
+    """... and at the end; the grid is upsampled (trilinearly) at `upsample_steps`."""
+    upsample_steps: tuple = (400, 900)
+    """Steps at which the density grid grows, geometrically from initial to final resolution."""
+    feature_resolution: int = 64
+    """Colour-feature grid vertices along the longest side (fixed)."""
+    feature_channels: int = 12
+    """Channels of the colour-feature grid; the first three are a diffuse colour."""
+    mlp_width: int = 64
+    """Hidden width of the colour MLP (features + view direction in degree-2 SH -> RGB residual)."""
+    step_ratio: float = 0.5
+    """Distance between samples along a ray, in voxels of the current density grid."""
+    alpha_init: float = 1e-3
+    """Opacity of one sample step in the untrained grid."""
+    occupancy_threshold: float = 2e-3
+    """A vertex is empty when a step (at the final resolution) at its density is less opaque than this
+    (dilated by one vertex); above `alpha_init`, so space whose density never rose is skipped."""
+    occupancy_every: int = 16
+    """Steps between refreshes of the occupancy grid."""
+    occupancy_warmup: int = 30
+    """No empty-space skipping before this step."""
+    weight_threshold: float = 1e-4
+    """Samples whose compositing weight is below this skip the colour query."""
+    steps: int = 1500
+    """Optimiser steps."""
+    rays_per_batch: int = 4096
+    """Rays per step, drawn from every pixel of every training view."""
+    learning_rate_grid: float = 0.1
+    learning_rate_mlp: float = 1e-3
+    learning_rate_decay: float = 0.1
+    """Both rates decay exponentially to this fraction over `steps`."""
+    tv_weight: float = 0.0
+    """Weight of a total-variation penalty on the density grid (0: off)."""
+    background: str = "learned"
+    """Colour behind the scene: 'learned' (one RGB), 'white' or 'black'."""
+    bounds_margin: float = 0.1
+    """The scene box is the sparse points' 1-99 % box grown on each side by this fraction of its longest side."""
+    checkpoint_every: int = 250
+    """Steps between checkpoints."""
+    seed: int = 0
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "NerfConfig":
+        values = json.loads(text)
+        values["upsample_steps"] = tuple(values.get("upsample_steps", ()))
+        known = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in values.items() if k in known})
+
+    def grid_resolution_at(self, step: int) -> int:
+        """Density-grid resolution (longest side) in force at `step`."""
+        stages = len(self.upsample_steps)
+        done = sum(1 for s in self.upsample_steps if step >= s)
+        if stages == 0:
+            return self.grid_resolution
+        ratio = (self.grid_resolution / self.grid_resolution_initial) ** (done / stages)
+        return int(round(self.grid_resolution_initial * ratio))
+
+
+PRESETS = {
+    "fast": NerfConfig(),
+    "quality": NerfConfig(
+        max_image_side=400,
+        grid_resolution_initial=80,
+        grid_resolution=192,
+        upsample_steps=(1000, 2000, 3000),
+        feature_resolution=96,
+        mlp_width=96,
+        steps=6000,
+        rays_per_batch=8192,
+        tv_weight=0.0,
+        checkpoint_every=500,
+    ),
+}
+
+
+def preset_config(name: str, **overrides) -> NerfConfig:
+    """A preset with some fields replaced (None values are ignored)."""
+    return dataclasses.replace(PRESETS[name], **{k: v for k, v in overrides.items() if v is not None})

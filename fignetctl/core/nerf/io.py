@@ -1,0 +1,86 @@
+"""`nerf.pt`, format `fignetctl.nerf`, format_version 1.
+
+A torch file loaded with `weights_only=True` (nothing is unpickled but tensors and plain values):
+
+    format, format_version, fignetctl_version, config (NerfConfig json), bounds (2x3 list),
+    density_shape (X, Y, Z of the density grid), metrics (json), inputs (json: data hash,
+    image size trained on), model (state_dict), training_state (optional: step, optimizer,
+    generator state, history, seconds)
+
+Writes are atomic. Anything else raises FormatError in one line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from fignetctl import __version__
+from fignetctl.core.atomic import atomic_path
+from fignetctl.core.nerf.config import NerfConfig
+from fignetctl.errors import FormatError
+
+FORMAT = "fignetctl.nerf"
+FORMAT_VERSION = 1
+
+
+def save_nerf(path, model, metrics=None, inputs=None, training_state=None) -> Path:
+    """Write a nerf.pt atomically; `training_state` makes it resumable."""
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "fignetctl_version": __version__,
+        "config": model.config.to_json(),
+        "bounds": model.bounds.tolist(),
+        "density_shape": list(model.field.density_grid.shape[2:]),
+        "metrics": json.dumps(metrics or {}),
+        "inputs": json.dumps(inputs or {}),
+        "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+    }
+    if training_state is not None:
+        payload["training_state"] = training_state
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return Path(path)
+
+
+def read_nerf_payload(path) -> dict:
+    """The checked dictionary of a nerf.pt."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such nerf file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for corrupt or foreign files
+        raise FormatError(f"{path}: not a readable nerf.pt ({type(error).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise FormatError(f"{path}: not a fignetctl nerf file (no format={FORMAT!r})")
+    if payload.get("format_version") != FORMAT_VERSION:
+        raise FormatError(
+            f"{path}: nerf format_version {payload.get('format_version')!r} is not supported (this fignetctl reads {FORMAT_VERSION})"
+        )
+    return payload
+
+
+def load_nerf(path, device="cpu", with_training_state=False):
+    """nerf.pt -> NerfModel (eval mode) with .render, .render_rays, .density, .bounds, .metrics."""
+    from fignetctl.core.nerf.model import NerfModel
+
+    payload = read_nerf_payload(path)
+    try:
+        config = NerfConfig.from_json(payload["config"])
+        model = NerfModel(config, payload["bounds"])
+        shape = tuple(int(s) for s in payload["density_shape"])
+        model.field.density_grid = torch.nn.Parameter(torch.zeros(1, 1, *shape))
+        model.occupancy.occupied = torch.ones(shape, dtype=torch.bool)
+        model.load_state_dict(payload["model"])
+        model.metrics = json.loads(payload.get("metrics", "{}"))
+        model.inputs = json.loads(payload.get("inputs", "{}"))
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
+    model.to(device).eval()
+    if with_training_state:
+        return model, payload.get("training_state")
+    return model

@@ -1,0 +1,117 @@
+"""NerfModel: field + occupancy + sampler + renderer, the object a nerf.pt loads into."""
+
+from __future__ import annotations
+
+import typing
+
+import numpy as np
+import torch
+from torch import nn
+
+from fignetctl.core.nerf.config import NerfConfig
+from fignetctl.core.nerf.field import GridField, OccupancyGrid
+from fignetctl.core.nerf.rays import pixel_rays
+from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
+from fignetctl.errors import FignetError
+
+BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0), "learned": (0.5, 0.5, 0.5)}
+
+
+class Rendering(typing.NamedTuple):
+    """A rendered image: rgb (H, W, 3) float32 in [0, 1], depth (H, W) z-depth (0 where
+    nothing is hit), opacity (H, W) accumulated alpha."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    opacity: np.ndarray
+
+
+class NerfModel(nn.Module):
+    """A radiance field on a scene box, with rendering for any pinhole camera."""
+
+    def __init__(self, config: NerfConfig, bounds, density_resolution=None):
+        super().__init__()
+        if config.background not in BACKGROUNDS:
+            raise FignetError(f"background {config.background!r} is not one of {sorted(BACKGROUNDS)}")
+        self.config = config
+        self.field = GridField(bounds, config, density_resolution)
+        self.occupancy = OccupancyGrid(bounds, self.field.density_grid.shape[2:])
+        colour = torch.tensor(BACKGROUNDS[config.background])
+        self.background_logit = nn.Parameter(torch.logit(colour.clamp(1e-3, 1 - 1e-3)), requires_grad=config.background == "learned")
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) scene box (low, high) in world units."""
+        return self.field.bounds.detach().cpu().numpy().astype(np.float64)
+
+    @property
+    def background(self):
+        """(3,) RGB behind the scene."""
+        if self.config.background == "learned":
+            return torch.sigmoid(self.background_logit)
+        return torch.tensor(BACKGROUNDS[self.config.background], device=self.background_logit.device)
+
+    @property
+    def step_length(self) -> float:
+        """World distance between samples along a ray."""
+        return self.config.step_ratio * self.field.voxel_size
+
+    def refresh_occupancy(self) -> None:
+        """Re-mark empty space from the current densities (at the density grid's resolution)."""
+        if tuple(self.occupancy.occupied.shape) != tuple(self.field.density_grid.shape[2:]):
+            self.occupancy.occupied = torch.ones(self.field.density_grid.shape[2:], dtype=torch.bool, device=self.occupancy.occupied.device)
+        reference_step = self.config.step_ratio * self.field.reference_voxel  # alpha_init is defined at this step
+        self.occupancy.refresh(self.field, reference_step, self.config.occupancy_threshold)
+
+    # -- the API later stages use -------------------------------------------------------------
+    def density(self, points):
+        """σ (P,) (1 / world unit) at world points (P, 3), numpy or torch (returns the same kind)."""
+        as_numpy = isinstance(points, np.ndarray)
+        device = self.field.density_grid.device
+        tensor = torch.as_tensor(np.asarray(points, np.float32) if as_numpy else points, device=device, dtype=torch.float32)
+        with torch.set_grad_enabled(not as_numpy and torch.is_grad_enabled()):
+            sigma = self.field.density(tensor.reshape(-1, 3))
+        return sigma.detach().cpu().numpy() if as_numpy else sigma
+
+    def render_rays(self, origins, directions, warp=None, jitter=None, chunk=None, skip_empty=True, weight_threshold=None):
+        """Volume-render rays (R, 3) + (R, 3) (torch, any direction length).
+
+        warp(points (P,3)) -> points (P,3) (or (points, directions)) is applied to every sample
+        point before the field is queried (ray bending). Returns a dict of tensors:
+        rgb (R, 3), depth (R,) the expected ray parameter t of the surface (z-depth for
+        camera rays from `render`), distance (R,) = depth · |d|, opacity (R,). Samples whose
+        compositing weight is below `weight_threshold` (default: the config's) get no colour.
+        """
+        if chunk is not None and len(origins) > chunk:
+            parts = [self.render_rays(o, d, warp, None if jitter is None else j, None, skip_empty, weight_threshold)
+                     for o, d, j in zip(origins.split(chunk), directions.split(chunk), (jitter.split(chunk) if jitter is not None else [None] * len(origins.split(chunk))))]
+            return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
+        low, high = self.field.bounds[0], self.field.bounds[1]
+        samples = sample_along_rays(origins, directions, low, high, self.step_length, jitter)
+        occupancy = self.occupancy if skip_empty else None
+        rgb, depth, opacity, _ = render_samples(
+            self.field, occupancy, samples, directions, self.background, warp,
+            self.config.weight_threshold if weight_threshold is None else weight_threshold,
+        )
+        return {"rgb": rgb, "depth": depth, "distance": depth * directions.norm(dim=-1), "opacity": opacity}
+
+    @torch.no_grad()
+    def render(self, camera, index: int = 0, warp=None, chunk: int = 16384) -> Rendering:
+        """Render one camera: a `Cameras` (with `index`) or a tuple (K, c2w, width, height)."""
+        K, c2w, width, height = _camera_tuple(camera, index)
+        origins, directions = pixel_rays(K, c2w, width, height)
+        device = self.field.density_grid.device
+        o = torch.as_tensor(origins.reshape(-1, 3), dtype=torch.float32, device=device)
+        d = torch.as_tensor(directions.reshape(-1, 3), dtype=torch.float32, device=device)
+        out = self.render_rays(o, d, warp=warp, chunk=chunk)
+        as_image = lambda x, *shape: x.reshape(height, width, *shape).float().cpu().numpy()  # noqa: E731
+        return Rendering(as_image(out["rgb"].clamp(0, 1), 3), as_image(out["depth"]), as_image(out["opacity"]))
+
+
+def _camera_tuple(camera, index):
+    if isinstance(camera, tuple) and len(camera) == 4:
+        K, c2w, width, height = camera
+        return np.asarray(K), np.asarray(c2w), int(width), int(height)
+    if hasattr(camera, "K") and hasattr(camera, "c2w"):
+        return camera.K[index], camera.c2w[index], int(camera.width), int(camera.height)
+    raise FignetError("render needs a Cameras or a tuple (K, c2w, width, height)")

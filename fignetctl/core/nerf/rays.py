@@ -1,0 +1,103 @@
+"""Rays of pinhole cameras (OpenCV convention) and the scene box.
+
+Pixel (u, v) has its centre at integer coordinates (OpenCV), so a pixel's ray direction is
+d = R · K⁻¹ · (u, v, 1): its z component in the camera frame is 1, and a point o + t·d along it
+lies at z-depth t. Ray parameters returned by the renderer are therefore z-depths for these rays,
+and x = z · K⁻¹ · (u, v, 1) unprojects a depth image (DESIGN.md, perception).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from fignetctl.errors import FignetError
+
+
+def pixel_rays(K, c2w, width: int, height: int):
+    """Rays through every pixel centre of one camera.
+
+    K : (3, 3), c2w : (4, 4) OpenCV camera-to-world
+    returns origins (H, W, 3), directions (H, W, 3) float64, with camera-frame z of each direction 1
+    """
+    K, c2w = np.asarray(K, np.float64), np.asarray(c2w, np.float64)
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    pixels = np.stack([u, v, np.ones_like(u)], axis=-1)
+    directions_camera = pixels @ np.linalg.inv(K).T
+    directions = directions_camera @ c2w[:3, :3].T
+    origins = np.broadcast_to(c2w[:3, 3], directions.shape).copy()
+    return origins, directions
+
+
+def scale_intrinsics(K, scale_x: float, scale_y: float):
+    """K of an image resized by (scale_x, scale_y), pixel centres at integers.
+
+    K : (..., 3, 3)
+    """
+    K = np.array(K, np.float64)
+    K[..., 0, 0] *= scale_x
+    K[..., 1, 1] *= scale_y
+    K[..., 0, 2] = (K[..., 0, 2] + 0.5) * scale_x - 0.5
+    K[..., 1, 2] = (K[..., 1, 2] + 0.5) * scale_y - 0.5
+    return K
+
+
+def ray_box_intersection(origins, directions, low, high):
+    """Entry and exit ray parameters of an axis-aligned box (slab method).
+
+    origins, directions : (R, 3) tensors; low, high : (3,) tensors
+    returns near (R,), far (R,): far <= near where the ray misses; near clamped to >= 0
+    """
+    safe = torch.where(directions.abs() < 1e-12, torch.full_like(directions, 1e-12), directions)
+    t_low = (low - origins) / safe
+    t_high = (high - origins) / safe
+    near = torch.minimum(t_low, t_high).amax(dim=-1).clamp(min=0.0)
+    far = torch.maximum(t_low, t_high).amin(dim=-1)
+    return near, far
+
+
+def look_at_point(c2w) -> np.ndarray:
+    """Least-squares point closest to every camera's optical axis.
+
+    c2w : (N, 4, 4) OpenCV
+    """
+    centres, axes = c2w[:, :3, 3], c2w[:, :3, 2]
+    projectors = np.eye(3) - axes[:, :, None] * axes[:, None, :]
+    lhs, rhs = projectors.sum(0), np.einsum("nij,nj->i", projectors, centres)
+    if np.linalg.cond(lhs) > 1e8:  # parallel axes: a point in front of the cameras
+        return centres.mean(0) + axes.mean(0) * np.linalg.norm(centres - centres.mean(0), axis=1).mean()
+    return np.linalg.solve(lhs, rhs)
+
+
+def scene_bounds(points, c2w, margin: float = 0.1):
+    """Axis-aligned scene box (2, 3): from the sparse points, else from the cameras.
+
+    With 20 or more points: their 1st-99th percentile box, limited to the cameras' range along
+    axes where the cameras surround the points, grown on each side by `margin` times its longest
+    side, each side at least 5 % of the longest. With fewer: a cube around the point the cameras
+    look at, half the median camera distance to it in half-size.
+    points : (M, 3); c2w : (N, 4, 4)
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    c2w = np.asarray(c2w, np.float64)
+    if len(points) >= 20:
+        low, high = np.percentile(points, 1, axis=0), np.percentile(points, 99, axis=0)
+        # Along an axis where the cameras surround the scene (their range holds the points'
+        # median), the region of interest ends at the cameras: a floor seen to the horizon
+        # would otherwise stretch the box and coarsen the grid.
+        centres = c2w[:, :3, 3]
+        median = np.median(points, axis=0)
+        surrounded = (centres.min(0) < median) & (median < centres.max(0))
+        low = np.where(surrounded, np.maximum(low, centres.min(0)), low)
+        high = np.where(surrounded, np.minimum(high, centres.max(0)), high)
+        size = np.maximum(high - low, 0.05 * (high - low).max())
+        centre = 0.5 * (low + high)
+        half = 0.5 * size + margin * size.max()
+    else:
+        centre = look_at_point(c2w)
+        distance = np.median(np.linalg.norm(c2w[:, :3, 3] - centre, axis=1))
+        half = np.full(3, 0.5 * distance)
+    bounds = np.stack([centre - half, centre + half])
+    if not np.isfinite(bounds).all() or (bounds[1] - bounds[0]).max() <= 0:
+        raise FignetError("cannot find the scene's extent from the sparse points and cameras")
+    return bounds

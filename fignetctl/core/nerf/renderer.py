@@ -1,0 +1,101 @@
+"""Sampling along rays and volume rendering, apart from any field.
+
+A field here is anything with `density(points (P,3)) -> (P,)` and
+`colour(points (P,3), directions (P,3)) -> (P,3)`; an occupancy is anything with
+`lookup(points) -> (P,) bool`. Compositing (Max 1995, NeRF):
+
+    αᵢ = 1 − exp(−σᵢ δᵢ),  Tᵢ = exp(−Σ_{j<i} σⱼ δⱼ),  wᵢ = Tᵢ αᵢ
+    C = Σ wᵢ cᵢ + (1 − Σ wᵢ) · background,  opacity = Σ wᵢ,  depth = Σ wᵢ tᵢ / Σ wᵢ
+
+with δᵢ the world distance between samples and tᵢ the ray parameter of sample i (z-depth for
+rays whose direction has camera-frame z = 1, see rays.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from fignetctl.core.nerf.rays import ray_box_intersection
+
+
+@dataclasses.dataclass
+class RaySamples:
+    """Evenly spaced samples along R rays, S per ray (padded)."""
+
+    t: torch.Tensor  # (R, S) ray parameter of each sample
+    points: torch.Tensor  # (R, S, 3) world positions
+    step: torch.Tensor  # (R,) world distance between neighbouring samples
+    valid: torch.Tensor  # (R, S) inside [near, far)
+
+
+def sample_along_rays(origins, directions, low, high, step_length: float, jitter=None):
+    """Samples every `step_length` (world units) inside the box; `jitter` (R,) in [0, 1)
+    offsets the first sample (training), else samples start half a step in."""
+    near, far = ray_box_intersection(origins, directions, low, high)
+    norms = directions.norm(dim=-1).clamp(min=1e-12)
+    step_t = step_length / norms
+    count = int(torch.clamp(((far - near) / step_t).max().ceil(), min=1).item()) if len(origins) else 1
+    offset = torch.full_like(near, 0.5) if jitter is None else jitter
+    index = torch.arange(count, device=origins.device, dtype=origins.dtype)
+    t = near[:, None] + (index[None, :] + offset[:, None]) * step_t[:, None]
+    valid = t < far[:, None]
+    points = origins[:, None, :] + t[..., None] * directions[:, None, :]
+    return RaySamples(t=t, points=points, step=step_t * norms, valid=valid)
+
+
+def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
+    """Volume rendering of densities `sigma` (R, S) at spacing `step` (R,).
+
+    colour_of(mask (R, S) bool) -> (n, 3) colours of the masked samples; only samples with
+    weight above `weight_threshold` are coloured. background : (3,) or (R, 3).
+    returns rgb (R, 3), depth (R,) (Σ w t / Σ w, 0 where nothing is hit), opacity (R,), weights (R, S)
+    """
+    optical = sigma * step[:, None]
+    alpha = 1.0 - torch.exp(-optical)
+    transmittance = torch.exp(-(torch.cumsum(optical, dim=-1) - optical))
+    weights = transmittance * alpha
+    opacity = weights.sum(dim=-1)
+    depth = (weights * t).sum(dim=-1) / opacity.clamp(min=1e-10)
+    depth = torch.where(opacity > 1e-6, depth, torch.zeros_like(depth))
+    rgb = (1.0 - opacity)[:, None] * background
+    if colour_of is not None:
+        mask = weights > weight_threshold
+        if mask.any():
+            colours = colour_of(mask)
+            rgb = rgb + torch.zeros_like(rgb).index_put((mask.nonzero()[:, 0],), weights[mask][:, None] * colours, accumulate=True)
+    return rgb, depth, opacity, weights
+
+
+def render_samples(field, occupancy, samples: RaySamples, directions, background, warp=None, weight_threshold=0.0):
+    """Query the field at the samples (through `warp` when given) and composite.
+
+    warp(points (P,3)) -> points (P,3), or -> (points, directions) to also turn the view
+    directions; applied to every sample point before the occupancy and field queries.
+    """
+    R, S = samples.valid.shape
+    candidate = samples.valid
+    flat_index = candidate.nonzero(as_tuple=True)
+    query = samples.points[flat_index]
+    query_directions = directions[flat_index[0]]
+    if warp is not None and len(query):
+        warped = warp(query)
+        if isinstance(warped, tuple):
+            query, query_directions = warped
+        else:
+            query = warped
+    keep = occupancy.lookup(query) if occupancy is not None else torch.ones(len(query), dtype=torch.bool, device=query.device)
+    rows, cols = flat_index[0][keep], flat_index[1][keep]
+    query, query_directions = query[keep], query_directions[keep]
+    sigma = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
+    if len(query):
+        sigma = sigma.index_put((rows, cols), field.density(query))
+    lookup = torch.full((R, S), -1, dtype=torch.long, device=sigma.device)
+    lookup[rows, cols] = torch.arange(len(rows), device=sigma.device)
+
+    def colour_of(mask):
+        chosen = lookup[mask]
+        return field.colour(query[chosen], query_directions[chosen])
+
+    return composite(sigma, samples.step, samples.t, background, colour_of, weight_threshold)

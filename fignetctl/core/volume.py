@@ -1,0 +1,126 @@
+"""`volume.npz`, format `fignetctl.volume`, format_version 1: where an extracted object lives.
+
+Written by `extract-mesh`, read by `build-graph` and `rerender`. World units (metres, z up):
+
+    format, format_version
+    lower (3,), upper (3,)                  the object's box V_o (the region whose density is the object)
+    origin (3,)                             the object frame's origin in world: object.obj's vertices are
+                                            stored relative to it, rest orientation identity, so the
+                                            object's position at rest in a trajectory is `origin`
+    passive_lower (3,), passive_upper (3,)  the box the environment mesh was extracted from
+    object_mesh, environment_mesh           file names of the meshes (relative to volume.npz's folder)
+    environment_origin (3,)                 optional: the environment mesh's frame origin (default 0:
+                                            environment.obj is in world coordinates)
+    settings (json str)                     optional: how the meshes were made
+
+Writes are atomic; `read_volume` raises FormatError naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from fignetctl.core.atomic import atomic_path
+from fignetctl.errors import FormatError
+
+FORMAT = "fignetctl.volume"
+FORMAT_VERSION = 1
+_VECTORS = ("lower", "upper", "origin", "passive_lower", "passive_upper")
+
+
+@dataclasses.dataclass
+class Volume:
+    """The object's box, its frame origin, the environment's box and the mesh file names."""
+
+    lower: np.ndarray  # (3,) float64
+    upper: np.ndarray  # (3,) float64
+    origin: np.ndarray  # (3,) float64
+    passive_lower: np.ndarray  # (3,) float64
+    passive_upper: np.ndarray  # (3,) float64
+    object_mesh: str = "object.obj"
+    environment_mesh: str = "environment.obj"
+    environment_origin: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    settings: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def size(self) -> np.ndarray:
+        """(3,) edge lengths of V_o."""
+        return self.upper - self.lower
+
+    def contains(self, points) -> np.ndarray:
+        """points (P, 3) -> (P,) bool: inside the closed box V_o."""
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        return np.all((points >= self.lower) & (points <= self.upper), axis=1)
+
+
+def validate_volume(volume: Volume, where: str = "volume") -> Volume:
+    """Check shapes, finiteness and box order; return the volume with float64 vectors."""
+    values = {}
+    for field in (*_VECTORS, "environment_origin"):
+        value = np.asarray(getattr(volume, field), np.float64)
+        if value.shape != (3,):
+            raise FormatError(f"{where}: field {field!r} must have shape (3,), got {value.shape}")
+        if not np.all(np.isfinite(value)):
+            raise FormatError(f"{where}: field {field!r} holds NaN or inf")
+        values[field] = value
+    for low, high in (("lower", "upper"), ("passive_lower", "passive_upper")):
+        if np.any(values[high] <= values[low]):
+            raise FormatError(f"{where}: {high!r} must be greater than {low!r} on every axis")
+    for field in ("object_mesh", "environment_mesh"):
+        if not str(getattr(volume, field)):
+            raise FormatError(f"{where}: field {field!r} is empty")
+    return dataclasses.replace(volume, **values, object_mesh=str(volume.object_mesh), environment_mesh=str(volume.environment_mesh))
+
+
+def write_volume(path, volume: Volume) -> Path:
+    """Validate, then write volume.npz atomically."""
+    volume = validate_volume(volume, str(path))
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(
+            f,
+            format=np.array(FORMAT),
+            format_version=np.array(FORMAT_VERSION),
+            **{field: getattr(volume, field) for field in (*_VECTORS, "environment_origin")},
+            object_mesh=np.array(volume.object_mesh),
+            environment_mesh=np.array(volume.environment_mesh),
+            settings=np.array(json.dumps(volume.settings, sort_keys=True)),
+        )
+    return Path(path)
+
+
+def read_volume(path) -> Volume:
+    """Read and check volume.npz; any problem is a one-line FormatError."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as error:
+        raise FormatError(f"{path}: not a readable volume.npz ({type(error).__name__})") from None
+    fmt = str(arrays.get("format", ""))
+    if fmt != FORMAT:
+        raise FormatError(f"{path}: 'format' is {fmt!r}, expected {FORMAT!r}")
+    version = arrays.get("format_version")
+    if version is None or version.shape != () or version.dtype.kind not in "iu" or int(version) != FORMAT_VERSION:
+        raise FormatError(f"{path}: format_version {None if version is None else version.tolist()!r} is not supported (this fignetctl reads {FORMAT_VERSION})")
+    for field in (*_VECTORS, "object_mesh", "environment_mesh"):
+        if field not in arrays:
+            raise FormatError(f"{path}: missing field {field!r}")
+    try:
+        settings = json.loads(str(arrays["settings"])) if "settings" in arrays else {}
+    except ValueError:
+        raise FormatError(f"{path}: field 'settings' is not json") from None
+    volume = Volume(
+        **{field: arrays[field] for field in _VECTORS},
+        object_mesh=str(arrays["object_mesh"]),
+        environment_mesh=str(arrays["environment_mesh"]),
+        environment_origin=arrays.get("environment_origin", np.zeros(3)),
+        settings=settings,
+    )
+    return validate_volume(volume, str(path))

@@ -1,0 +1,147 @@
+"""Mesh extraction on analytic densities, segmentation on a tiny rendered capture, volume.npz."""
+
+import json
+
+import numpy as np
+import pytest
+
+from fignetctl.core import mesh_extraction as mx
+from fignetctl.core.volume import Volume, read_volume, write_volume
+from fignetctl.errors import FignetError, FormatError
+
+
+def sphere(centre, radius, value=1000.0):
+    """A smooth ball density: value at the centre falling linearly to 0 at 1.5 radius."""
+    centre = np.asarray(centre, np.float64)
+
+    def density(points):
+        distance = np.linalg.norm(np.asarray(points) - centre, axis=1)
+        return value * np.clip(1.0 - distance / (1.5 * radius), 0.0, None) * 3.0
+
+    return density  # σ = value exactly at `radius`
+
+
+def box_on_floor(points):
+    """A 0.2 x 0.1 x 0.1 box resting on a floor slab (z in [-0.05, 0]) plus a tiny floater."""
+    p = np.asarray(points)
+    box = np.all(np.abs(p - [0.0, 0.0, 0.05]) <= [0.1, 0.05, 0.05], axis=1)
+    floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
+    floater = np.linalg.norm(p - [0.25, 0.25, 0.15], axis=1) < 0.012
+    return np.where(box | floor | floater, 1000.0, 0.0)
+
+
+def test_marching_cubes_sphere_volume_and_outward():
+    settings = mx.ExtractionSettings(resolution=48, threshold=1000.0, faces=0, smoothing=0)
+    mesh = mx.mesh_from_density(sphere([1, 2, 3], 0.5), [0.3, 1.3, 2.3], [1.7, 2.7, 3.7], settings)
+    assert mesh.is_watertight
+    assert mx.signed_volume(mesh.vertices, mesh.faces) > 0
+    assert mesh.volume == pytest.approx(4 / 3 * np.pi * 0.5**3, rel=0.03)
+    assert np.allclose(mesh.center_mass, [1, 2, 3], atol=0.01)
+
+
+def test_decimation_hits_face_count_and_keeps_shape():
+    settings = mx.ExtractionSettings(resolution=48, threshold=1000.0, faces=300)
+    mesh = mx.mesh_from_density(sphere([0, 0, 0], 0.5), [-0.7] * 3, [0.7] * 3, settings)
+    assert len(mesh.faces) == 300
+    assert mx.signed_volume(mesh.vertices, mesh.faces) > 0
+    assert mesh.volume == pytest.approx(4 / 3 * np.pi * 0.5**3, rel=0.06)
+
+
+def test_fragments_removed_and_box_cut_capped():
+    settings = mx.ExtractionSettings(resolution=64, faces=0, threshold=500.0)  # half the step: its edge
+    # The box V_o reaches into the floor: the support is found and V_o starts above it.
+    extraction = mx.extract_object(box_on_floor, np.array([[-0.15, -0.1, -0.03], [0.3, 0.3, 0.2]]), settings)
+    obj = extraction.object_mesh
+    assert extraction.support_z == pytest.approx(0.0, abs=0.01)
+    assert obj.body_count == 1  # the floater is dropped
+    assert np.allclose(obj.extents, [0.2, 0.1, 0.1], atol=0.015)
+    assert obj.bounds[0][2] > -0.002  # on the support, not joined to the floor
+    environment = extraction.environment_mesh
+    assert environment.is_watertight and mx.signed_volume(environment.vertices, environment.faces) > 0
+    assert environment.bounds[1][2] == pytest.approx(0.0, abs=0.01)  # the floor's top, the box cut out
+
+
+def test_empty_volume_and_bad_threshold_fail_clearly():
+    settings = mx.ExtractionSettings(resolution=16)
+    with pytest.raises(FignetError, match="no density above the threshold"):
+        mx.mesh_from_density(lambda p: np.zeros(len(p)), [0, 0, 0], [1, 1, 1], settings)
+    with pytest.raises(FignetError, match="positive"):
+        mx.marching_cubes(np.ones((4, 4, 4)), [np.arange(4.0)] * 3, -1.0)
+
+
+def test_unproject_and_robust_box():
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    c2w = np.eye(4)
+    depth = np.full((80, 100), 2.0)
+    mask = np.zeros((80, 100), bool)
+    mask[40, 50] = mask[40, 60] = True
+    points = mx.unproject(depth, mask, K, c2w)
+    assert np.allclose(points, [[0, 0, 2], [0.2, 0, 2]])
+    cloud = np.random.default_rng(0).normal(size=(1000, 3))
+    cloud[:5] = 100.0  # outliers
+    box = mx.robust_box(cloud)
+    assert np.all(np.abs(box) < 4)
+
+
+def test_views_that_do_not_overlap_fail():
+    a = np.array([[0, 0, 0], [1, 1, 1.0]])
+    with pytest.raises(FignetError, match="does not overlap"):
+        mx.check_views_agree([a, a + 0.2, a + 5], ["a", "b", "c"])
+    mx.check_views_agree([a, a + 0.2], ["a", "b"])
+
+
+def test_volume_round_trip_and_damage(tmp_path):
+    volume = Volume(np.zeros(3), np.ones(3), np.full(3, 0.5), -np.ones(3), np.full(3, 2.0), settings={"faces": 10})
+    write_volume(tmp_path / "volume.npz", volume)
+    back = read_volume(tmp_path / "volume.npz")
+    assert np.allclose(back.origin, 0.5) and back.object_mesh == "object.obj" and back.settings == {"faces": 10}
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(FormatError, match="not a readable"):
+        read_volume(tmp_path / "bad.npz")
+    np.savez(tmp_path / "old.npz", format="fignetctl.volume", format_version=2)
+    with pytest.raises(FormatError, match="format_version"):
+        read_volume(tmp_path / "old.npz")
+    np.savez(tmp_path / "part.npz", format="fignetctl.volume", format_version=1, lower=np.zeros(3))
+    with pytest.raises(FormatError, match="missing field 'upper'"):
+        read_volume(tmp_path / "part.npz")
+    with pytest.raises(FormatError, match="greater"):
+        write_volume(tmp_path / "v.npz", Volume(np.ones(3), np.zeros(3), np.zeros(3), -np.ones(3), np.ones(3)))
+
+
+@pytest.fixture(scope="module")
+def tiny_capture(tmp_path_factory):
+    from fignetctl.core.capture import PRESETS, render_capture
+
+    folder = tmp_path_factory.mktemp("capture") / "capture"
+    render_capture(folder, **{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    return folder
+
+
+def test_prompt_masks_match_ground_truth(tiny_capture):
+    import cv2
+
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.segmentation import iou, prompt_mask
+
+    cameras = read_cameras(tiny_capture / "ground_truth" / "cameras.npz")
+    depth = np.load(tiny_capture / "ground_truth" / "depth.npz")["depth"]
+    truth = np.load(tiny_capture / "ground_truth" / "masks.npz")["masks"]
+    scores = []
+    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+        for point in obj["points"]:
+            index = cameras.index_of(point["image"])
+            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            mask = prompt_mask(image, depth[index], cameras.K[index], point["u"], point["v"], pixel_offset=0.5)
+            scores.append(iou(mask, truth[index] == obj["id"]))
+    assert np.median(scores) >= 0.85 and min(scores) >= 0.5, scores
+
+
+def test_prompt_outside_or_on_empty_space_fails():
+    from fignetctl.core.segmentation import check_prompt
+
+    depth = np.ones((10, 10))
+    with pytest.raises(FignetError, match="outside"):
+        check_prompt(12, 3, 10, 10, depth)
+    depth[3, 3] = 0.0
+    with pytest.raises(FignetError, match="empty space"):
+        check_prompt(3, 3, 10, 10, depth)

@@ -1,0 +1,245 @@
+"""The radiance field: exact rendering of known fields, density queries, warp, file round trip,
+training that lowers the loss, and exact resume. Tiny scenes made here; seconds each."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.nerf.config import NerfConfig
+from fignetctl.core.nerf.io import load_nerf, save_nerf
+from fignetctl.core.nerf.model import NerfModel
+from fignetctl.core.nerf.rays import pixel_rays, scale_intrinsics, scene_bounds
+from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
+from fignetctl.core.nerf.training import make_trainer
+from fignetctl.errors import FignetError, FormatError
+
+TINY = NerfConfig(
+    max_image_side=32, holdout_every=4, grid_resolution_initial=24, grid_resolution=24, upsample_steps=(),
+    feature_resolution=12, feature_channels=6, mlp_width=16, rays_per_batch=256, steps=30,
+    occupancy_warmup=10, occupancy_every=5, checkpoint_every=1000,
+)
+BOUNDS = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+
+
+class ConstantBox:
+    """An analytic field: density `sigma` inside [-h, h]^3, colour `rgb` everywhere."""
+
+    def __init__(self, sigma, half=0.5, rgb=(1.0, 0.0, 0.0)):
+        self.sigma, self.half, self.rgb = sigma, half, torch.tensor(rgb)
+
+    def density(self, points):
+        inside = (points.abs() <= self.half).all(dim=-1)
+        return torch.where(inside, torch.full_like(points[:, 0], self.sigma), torch.zeros_like(points[:, 0]))
+
+    def colour(self, points, directions):
+        return self.rgb.expand(len(points), 3)
+
+
+def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
+    """OpenCV camera-to-world (x right, y down, z forward) at `eye` looking at `target`."""
+    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([right, down, forward], axis=1)
+    c2w[:3, 3] = eye
+    return c2w
+
+
+def orbit(n=8, radius=3.0, width=32, height=24, focal=30.0):
+    K = np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1.0]])
+    c2w = [look_at((radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a))) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
+    return np.repeat(K[None], n, 0), np.array(c2w)
+
+
+def solid_box_model(config=TINY, half=0.5, raw=14.0):
+    """A NerfModel whose density grid is high inside [-half, half]^3 and whose colour varies."""
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        model = NerfModel(config, BOUNDS, density_resolution=config.grid_resolution)
+    shape = model.field.density_grid.shape[2:]
+    axes = [torch.linspace(-1, 1, s) for s in shape]
+    x, y, z = torch.meshgrid(*axes, indexing="ij")
+    inside = (x.abs() <= half + 1e-6) & (y.abs() <= half + 1e-6) & (z.abs() <= half + 1e-6)
+    with torch.no_grad():
+        model.field.density_grid[0, 0] = torch.where(inside, torch.tensor(raw), torch.tensor(-20.0))
+        fx, fy, fz = (torch.linspace(-1, 1, s) for s in model.field.feature_grid.shape[2:])
+        gx, gy, gz = torch.meshgrid(fx, fy, fz, indexing="ij")
+        model.field.feature_grid[0, 0], model.field.feature_grid[0, 1], model.field.feature_grid[0, 2] = 3 * gx, 3 * gy, 3 * gz
+    model.refresh_occupancy()
+    return model.eval()
+
+
+def write_synthetic_scene(folder, n=8, width=32, height=24):
+    """Images of a coloured box rendered by a known field, with cameras.npz; returns paths."""
+    import cv2
+
+    model = solid_box_model(dataclasses.replace(TINY, background="black"))
+    K, c2w = orbit(n, width=width, height=height)
+    images = folder / "images"
+    images.mkdir(parents=True, exist_ok=True)
+    names = []
+    for i in range(n):
+        rgb = model.render((K[i], c2w[i], width, height)).rgb
+        names.append(f"view_{i:03d}.png")
+        cv2.imwrite(str(images / names[-1]), (rgb[..., ::-1] * 255 + 0.5).astype(np.uint8))
+    corners = np.array(np.meshgrid(*[[-0.5, 0.5]] * 3)).reshape(3, -1).T
+    points = np.concatenate([corners, np.random.default_rng(0).uniform(-0.5, 0.5, (40, 3))])
+    cameras = Cameras(np.array(names), K, c2w, width, height, points, np.zeros((len(points), 3), np.uint8))
+    write_cameras(folder / "cameras.npz", cameras)
+    return images, folder / "cameras.npz", cameras
+
+
+# -- rendering against exact answers ---------------------------------------------------------
+
+def test_constant_density_gives_beer_lambert_opacity_and_expected_depth():
+    sigma, step = 1.5, 1e-3
+    origins = torch.tensor([[0.0, 0.0, -3.0], [0.2, -0.1, -3.0]])
+    directions = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])  # the second has |d| = 2
+    low, high = torch.tensor([-1.0] * 3), torch.tensor([1.0] * 3)
+    samples = sample_along_rays(origins, directions, low, high, step)
+    rgb, depth, opacity, _ = render_samples(ConstantBox(sigma), None, samples, directions, torch.zeros(3))
+    exact_opacity = 1 - math.exp(-sigma * 1.0)  # a chord of length 1 through the box
+    # E[distance] inside the slab [2.5, 3.5]: a + 1/σ − L e^{−σL} / (1 − e^{−σL})
+    exact_distance = 2.5 + 1 / sigma - 1.0 * math.exp(-sigma) / (1 - math.exp(-sigma))
+    assert opacity.numpy() == pytest.approx([exact_opacity] * 2, abs=1e-3)
+    assert depth[0].item() == pytest.approx(exact_distance, abs=2e-3)
+    assert depth[1].item() == pytest.approx(exact_distance / 2, abs=2e-3)  # ray parameter, not distance
+    assert rgb[:, 0].numpy() == pytest.approx([exact_opacity] * 2, abs=1e-3)
+
+
+def test_opaque_box_depth_is_its_face_and_misses_are_background():
+    origins = torch.tensor([[0.0, 0.0, -3.0], [0.9, 0.9, -3.0]])
+    directions = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    samples = sample_along_rays(origins, directions, torch.tensor([-1.0] * 3), torch.tensor([1.0] * 3), 1e-3)
+    background = torch.tensor([0.0, 0.0, 1.0])
+    rgb, depth, opacity, _ = render_samples(ConstantBox(1e5), None, samples, directions, background)
+    assert depth[0].item() == pytest.approx(2.5, abs=2e-3) and opacity[0].item() == pytest.approx(1.0)
+    assert opacity[1].item() == 0.0 and depth[1].item() == 0.0
+    assert rgb.numpy() == pytest.approx(np.array([[1, 0, 0], [0, 0, 1.0]]), abs=1e-4)
+
+
+def test_grid_box_renders_z_depth_of_its_face_for_a_camera():
+    model = solid_box_model()
+    width, height = 33, 25
+    K = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
+    c2w = look_at((0.0, -3.0, 0.0), up=(0, 0, 1))
+    rendering = model.render((K, c2w, width, height))
+    voxel = 2.0 / 23
+    # Centre pixel: the face y = -0.5 is at z-depth 2.5; off-centre pixels see the same plane.
+    assert rendering.depth[12, 16] == pytest.approx(2.5, abs=voxel)
+    assert rendering.depth[12, 20] == pytest.approx(2.5, abs=voxel)
+    assert rendering.opacity[12, 16] > 0.99 and rendering.opacity[0, 0] < 1e-3 and rendering.depth[0, 0] == 0
+    assert rendering.rgb.shape == (height, width, 3) and rendering.depth.shape == (height, width)
+
+
+def test_density_inside_outside_and_numpy_in_numpy_out():
+    model = solid_box_model()
+    points = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.1], [0.85, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    sigma = model.density(points)
+    assert isinstance(sigma, np.ndarray) and sigma.shape == (4,)
+    assert sigma[0] > 50 and sigma[1] > 50 and sigma[2] < 1e-3 and sigma[3] == 0.0
+    assert torch.is_tensor(model.density(torch.zeros(2, 3)))
+
+
+def test_identity_warp_equals_no_warp_and_a_shift_moves_the_box():
+    model = solid_box_model()
+    K, c2w = orbit(1)
+    origins, directions = (torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32) for a in pixel_rays(K[0], c2w[0], 32, 24))
+    with torch.no_grad():
+        plain = model.render_rays(origins, directions)
+        warped = model.render_rays(origins, directions, warp=lambda x: x.clone())
+        shifted = model.render_rays(origins, directions, warp=lambda x: x - torch.tensor([0.0, 0.0, 0.3]))
+    for key in plain:
+        assert torch.allclose(plain[key], warped[key])
+    assert not torch.allclose(plain["opacity"], shifted["opacity"])
+
+
+def test_scaled_intrinsics_keep_the_ray_through_the_same_image_point():
+    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])  # 64x48, centre at (31.5, 23.5)
+    half = scale_intrinsics(K, 0.5, 0.5)
+    assert half[0, 2] == pytest.approx(15.5) and half[0, 0] == pytest.approx(25.0)
+
+
+def test_scene_bounds_cover_points_and_stop_at_surrounding_cameras():
+    points = np.random.default_rng(0).uniform([-5, -5, 0], [5, 5, 0.5], (500, 3))
+    _, c2w = orbit(8, radius=2.0)
+    low, high = scene_bounds(points, c2w, margin=0.1)
+    assert high[0] - low[0] < 5.0  # limited to the camera ring along x, y
+    assert low[2] < 0.0 and high[2] > 0.5
+
+
+# -- files ------------------------------------------------------------------------------------
+
+def test_save_load_round_trip_renders_the_same(tmp_path):
+    model = solid_box_model()
+    save_nerf(tmp_path / "nerf.pt", model, metrics={"held_out_psnr": 30.0})
+    loaded = load_nerf(tmp_path / "nerf.pt")
+    camera = (*orbit(1), 32, 24)
+    camera = (camera[0][0], camera[1][0], 32, 24)
+    assert np.allclose(loaded.render(camera).rgb, model.render(camera).rgb)
+    assert loaded.metrics["held_out_psnr"] == 30.0 and np.allclose(loaded.bounds, BOUNDS)
+
+
+@pytest.mark.parametrize("content", [b"not a torch file", b""])
+def test_corrupt_or_foreign_nerf_file_is_refused_in_one_line(tmp_path, content):
+    (tmp_path / "bad.pt").write_bytes(content)
+    with pytest.raises(FormatError) as error:
+        load_nerf(tmp_path / "bad.pt")
+    assert "\n" not in str(error.value)
+    torch.save({"format": "something.else"}, tmp_path / "foreign.pt")
+    with pytest.raises(FormatError, match="not a fignetctl nerf file"):
+        load_nerf(tmp_path / "foreign.pt")
+
+
+# -- training ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return write_synthetic_scene(tmp_path_factory.mktemp("scene"))
+
+
+def test_training_lowers_the_loss(scene):
+    images, _, cameras = scene
+    torch.manual_seed(0)
+    trainer = make_trainer(images, cameras, TINY)
+    trainer.run()
+    losses = [h["loss"] for h in trainer.history]
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:3])
+    assert list(trainer.held_out_views) == [0, 4]
+
+
+def test_resume_continues_exactly(scene, tmp_path):
+    images, _, cameras = scene
+    config = dataclasses.replace(TINY, steps=16, occupancy_warmup=4, occupancy_every=3)
+    straight = make_trainer(images, cameras, config)
+    straight.run()
+    first = make_trainer(images, cameras, config)
+    first.run(tmp_path / "nerf.pt", until_step=7)
+    resumed = make_trainer(images, cameras, config, resume_from=tmp_path / "nerf.pt")
+    assert resumed.step == 7
+    resumed.run()
+    for a, b in zip(straight.model.state_dict().values(), resumed.model.state_dict().values()):
+        assert torch.allclose(a.float(), b.float(), atol=1e-5)
+
+
+def test_nan_loss_is_a_one_line_error(scene):
+    images, _, cameras = scene
+    trainer = make_trainer(images, cameras, dataclasses.replace(TINY, learning_rate_grid=float("nan"), learning_rate_mlp=float("nan")))
+    with pytest.raises(FignetError, match="loss became nan"):
+        trainer.run()
+
+
+def test_images_that_do_not_match_the_cameras_are_refused(scene, tmp_path):
+    images, _, cameras = scene
+    with pytest.raises(FormatError, match="not in"):
+        make_trainer(tmp_path, cameras, TINY)
+    smaller = dataclasses.replace(cameras, width=16, height=12)
+    with pytest.raises(FormatError, match="do not match"):
+        make_trainer(images, smaller, TINY)

@@ -4,17 +4,17 @@ A face–face collision edge joins two faces of different objects whose triangle
 distance is at most the collision radius. Static–static pairs never get an edge (the floor
 and the environment do not collide with each other), so they are never even looked at.
 
-`face_pairs_within_radius` finds candidates with k-d trees over face centres and then keeps
+The broad phase compares `FaceGroup`s, one per object: its faces' world triangles and their
+conservative bounds. It finds candidates with k-d trees over face centres and then keeps
 exactly the pairs that `closest_points_triangles` puts within the radius:
 
 1. Each face is bounded by a sphere about its centroid (radius r_i). Two faces can be within
    the radius R only if |c_i - c_j| <= R + r_i + r_j.
-2. Only object pairs that are not both static and whose bounding boxes, grown by R, overlap
-   are looked at: far-apart objects cost one box test, and static–static pairs nothing, so
-   the cost follows the moving geometry, not the size of the static scene.
+2. Only group pairs that are not both static and whose bounding boxes, grown by R, overlap
+   are looked at: far-apart objects cost one box test, and static–static pairs nothing.
 3. Faces differ wildly in size (a floor of 2 huge triangles beside small object faces), so
-   each object's faces are grouped into size classes by powers of two of r_i, each with a
-   k-d tree of centres. For each pair of classes (k, l) of the two objects, one tree query
+   each group's faces are split into size classes by powers of two of r_i, each with a
+   k-d tree of centres. For each pair of classes (k, l) of the two groups, one tree query
    with the class bound R + max r_k + max r_l returns a superset, which the per-pair sphere
    test and an axis-aligned box test (boxes grown by R) then thin out. A huge face is thus
    only tested with a bound of its own size, never inserted into a grid of small cells.
@@ -22,6 +22,14 @@ exactly the pairs that `closest_points_triangles` puts within the radius:
    higher) exactly as the brute force does. The bounds in 1–3 carry a small relative slack,
    so a pair at exactly the radius is never lost to rounding, and the result equals
    `brute_force_face_pairs` bit for bit.
+
+Static geometry is usually at rest, so its groups need not be rebuilt: a `StaticFaceIndex`
+keeps each static object's group (world triangles, bounds, trees) under a key of its pose
+and rebuilds it only when the pose changes (given, kinematic motion). With the groups kept,
+`face_pairs_between_groups` does no work per static face except for the faces the tree
+queries return near a moving object, so a step's cost follows the moving geometry and its
+contacts, not the size of the environment. `face_pairs_within_radius` is the simple entry
+point that builds every group from all world triangles at each call (O(F)).
 """
 
 from __future__ import annotations
@@ -135,83 +143,158 @@ def _size_classes(faces, radii):
     return [faces[classes == k] for k in np.unique(classes)]
 
 
-class _ObjectFaces:
-    """Each object's faces, its box, and its size classes with lazily built k-d trees."""
+class FaceGroup:
+    """The faces of one object in world coordinates, with the bounds the broad phase tests.
 
-    def __init__(self, face_object, object_count, bounds):
-        order = np.argsort(face_object, kind="stable")
-        boundaries = np.searchsorted(face_object[order], np.arange(object_count + 1))
-        self.faces = [order[boundaries[k] : boundaries[k + 1]] for k in range(object_count)]
-        self.bounds = bounds
-        self.lower, self.upper = self._object_boxes(order, boundaries)
-        self._classes = {}
+    Building one costs O(m); its k-d trees are built on first use. A static object's group
+    can be kept and reused for as long as the object does not move (`StaticFaceIndex`).
 
-    def _object_boxes(self, order, boundaries):
-        """(O, 3) lower and upper corners of each object's box; +-inf for objects without faces."""
-        empty = (boundaries[1:] == boundaries[:-1])[:, None]
-        starts = np.minimum(boundaries[:-1], max(len(order) - 1, 0))
-        if len(order) == 0:
-            return np.full((len(empty), 3), np.inf), np.full((len(empty), 3), -np.inf)
-        lower = np.minimum.reduceat(self.bounds.lower[order], starts, axis=0)
-        upper = np.maximum.reduceat(self.bounds.upper[order], starts, axis=0)
-        return np.where(empty, np.inf, lower), np.where(empty, -np.inf, upper)
+    faces : (m,) int, the global index of each face
+    vertices : (n, 3) float64, world points
+    corners : (m, 3) int, rows of `vertices` of each face's three corners
+    """
 
-    def classes(self, object_index):
-        """[(faces (m,) int, largest bounding radius, cKDTree of their centres)] of an object."""
-        if object_index not in self._classes:
-            self._classes[object_index] = [
-                (faces, self.bounds.radii[faces].max(), cKDTree(self.bounds.centres[faces]))
-                for faces in _size_classes(self.faces[object_index], self.bounds.radii)
+    def __init__(self, faces, vertices, corners):
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.corners = np.asarray(corners, dtype=np.int64).reshape(-1, 3)
+        self.bounds = _face_bounds(self.triangles())
+        empty = self.faces.size == 0
+        self.lower = np.full(3, np.inf) if empty else self.bounds.lower.min(axis=0)
+        self.upper = np.full(3, -np.inf) if empty else self.bounds.upper.max(axis=0)
+        self._classes = None
+
+    @classmethod
+    def from_triangles(cls, faces, triangles):
+        """faces (m,) int, triangles (m, 3, 3) float world coordinates -> FaceGroup."""
+        triangles = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+        return cls(faces, triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3))
+
+    def triangles(self, local=slice(None)):
+        """(k, 3, 3) world triangles of the faces at the given local rows (all by default)."""
+        return self.vertices[self.corners[local]]
+
+    def classes(self):
+        """[(local rows (m_k,) int, largest bounding radius, cKDTree of their centres)]."""
+        if self._classes is None:
+            self._classes = [
+                (rows, self.bounds.radii[rows].max(), cKDTree(self.bounds.centres[rows]))
+                for rows in _size_classes(np.arange(self.faces.size), self.bounds.radii)
             ]
-        return self._classes[object_index]
+        return self._classes
 
 
-def _object_pairs_in_reach(objects, object_static, radius):
-    """Object pairs (o1 < o2), not both static, whose boxes grown by radius overlap."""
-    first, second = np.triu_indices(objects.lower.shape[0], k=1)
-    lower, upper = objects.lower, objects.upper
+class StaticFaceIndex:
+    """FaceGroups of static objects, each kept while its object's pose is unchanged.
+
+    `group(object, pose_key, build)` returns the kept group when `pose_key` (any bytes that
+    identify the pose, e.g. the position and quaternion) is the one it was built at, and
+    otherwise calls `build()` and keeps the result. A static object at rest thus costs
+    O(F_o) once; one with given (kinematic) motion is rebuilt each time its pose changes.
+    `builds` counts the groups built.
+    """
+
+    def __init__(self):
+        self._groups = {}
+        self.builds = 0
+
+    def group(self, object_index, pose_key, build) -> FaceGroup:
+        kept = self._groups.get(object_index)
+        if kept is not None and kept[0] == pose_key:
+            return kept[1]
+        group = build()
+        self._groups[object_index] = (pose_key, group)
+        self.builds += 1
+        return group
+
+    def kept(self, object_index, pose_key):
+        """The kept group of an object if it was built at `pose_key`, else None."""
+        kept = self._groups.get(object_index)
+        return kept[1] if kept is not None and kept[0] == pose_key else None
+
+    def clear(self):
+        self._groups.clear()
+
+
+def _slack(radius):
+    return radius * (1.0 + BOUND_RELATIVE_SLACK) + BOUND_ABSOLUTE_SLACK
+
+
+def _group_pairs_in_reach(groups, group_static, radius):
+    """Group pairs (g1 < g2), not both static, whose boxes grown by radius overlap."""
+    if len(groups) < 2:
+        return []
+    lower = np.stack([group.lower for group in groups])
+    upper = np.stack([group.upper for group in groups])
+    first, second = np.triu_indices(len(groups), k=1)
     box_gap = np.maximum(lower[first] - upper[second], lower[second] - upper[first]).max(axis=-1)
-    slack_radius = radius * (1.0 + BOUND_RELATIVE_SLACK) + BOUND_ABSOLUTE_SLACK
-    keep = (box_gap <= slack_radius) & ~(object_static[first] & object_static[second])
-    return first[keep], second[keep]
+    keep = (box_gap <= _slack(radius)) & ~(group_static[first] & group_static[second])
+    return list(zip(first[keep].tolist(), second[keep].tolist()))
 
 
-def _object_pair_candidates(objects, object_1, object_2, radius):
-    """Sphere-bound candidate face pairs between two objects, one tree query per class pair."""
-    found_i, found_j = [], []
-    for faces_1, largest_1, tree_1 in objects.classes(object_1):
-        for faces_2, largest_2, tree_2 in objects.classes(object_2):
+def _group_pair_candidates(group_1, group_2, radius):
+    """Local rows (k,), (k,) of face pairs of two groups that the sphere and box bounds allow."""
+    found_1, found_2 = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for rows_1, largest_1, tree_1 in group_1.classes():
+        for rows_2, largest_2, tree_2 in group_2.classes():
             bound = (radius + largest_1 + largest_2) * (1.0 + BOUND_RELATIVE_SLACK) + BOUND_ABSOLUTE_SLACK
             matrix = tree_1.sparse_distance_matrix(tree_2, bound, output_type="ndarray")
-            found_i.append(faces_1[matrix["i"]])
-            found_j.append(faces_2[matrix["j"]])
-    return found_i, found_j
+            found_1.append(rows_1[matrix["i"]])
+            found_2.append(rows_2[matrix["j"]])
+    local_1, local_2 = np.concatenate(found_1), np.concatenate(found_2)
+    keep = _within_conservative_bounds(group_1.bounds, group_2.bounds, local_1, local_2, radius)
+    return local_1[keep], local_2[keep]
 
 
-def _within_conservative_bounds(bounds, face_i, face_j, radius):
+def _within_conservative_bounds(bounds_1, bounds_2, local_1, local_2, radius):
     """True where the bounding spheres and the boxes grown by radius both allow contact."""
-    slack_radius = radius * (1.0 + BOUND_RELATIVE_SLACK) + BOUND_ABSOLUTE_SLACK
-    sphere_reach = slack_radius + (bounds.radii[face_i] + bounds.radii[face_j]) * (1.0 + BOUND_RELATIVE_SLACK)
-    centre_offsets = bounds.centres[face_i] - bounds.centres[face_j]
+    slack_radius = _slack(radius)
+    sphere_reach = slack_radius + (bounds_1.radii[local_1] + bounds_2.radii[local_2]) * (1.0 + BOUND_RELATIVE_SLACK)
+    centre_offsets = bounds_1.centres[local_1] - bounds_2.centres[local_2]
     centre_gap = np.sqrt(np.einsum("pj,pj->p", centre_offsets, centre_offsets))
-    lower, upper = bounds.lower, bounds.upper
-    box_gaps = np.maximum(lower[face_i] - upper[face_j], lower[face_j] - upper[face_i])
+    box_gaps = np.maximum(
+        bounds_1.lower[local_1] - bounds_2.upper[local_2], bounds_2.lower[local_2] - bounds_1.upper[local_1]
+    )
     box_gap = np.maximum(np.maximum(box_gaps[:, 0], box_gaps[:, 1]), box_gaps[:, 2])
     return (centre_gap <= sphere_reach) & (box_gap <= slack_radius)
 
 
-def _candidate_pairs(triangles, face_object, object_static, radius):
-    """Candidate face pairs of objects in reach of each other (superset of the answer)."""
-    bounds = _face_bounds(triangles)
-    objects = _ObjectFaces(face_object, object_static.shape[0], bounds)
+def _exact_group_pairs(group_1, group_2, local_1, local_2, radius):
+    """The candidate pairs within the radius, as global (lower face, higher face): the exact
+    distance is computed in that order, as the brute force does."""
+    face_1, face_2 = group_1.faces[local_1], group_2.faces[local_2]
+    swap = (face_1 > face_2)[:, None, None]
+    triangles_1, triangles_2 = group_1.triangles(local_1), group_2.triangles(local_2)
+    low, high = np.where(swap, triangles_2, triangles_1), np.where(swap, triangles_1, triangles_2)
+    face_low, face_high = np.minimum(face_1, face_2), np.maximum(face_1, face_2)
+    if face_low.size == 0:
+        return face_low, face_high
+    _, _, distance = closest_points_triangles(low, high)
+    keep = distance <= radius
+    return face_low[keep], face_high[keep]
+
+
+def face_pairs_between_groups(groups, group_static, radius, face_count):
+    """All pairs of faces of different groups, not both static, within `radius`.
+
+    The work is one box test per group pair and, for groups in reach, k-d tree queries and
+    bound tests that touch only faces near the other group: a static group far from every
+    moving one costs nothing per face.
+
+    groups : list of FaceGroup, one per object
+    group_static : (G,) bool
+    radius : float >= 0
+    face_count : int, more than every face index (orders the result)
+    returns : face_i (P,), face_j (P,) int64, face_i < face_j, sorted lexicographically
+    """
+    group_static = np.asarray(group_static, dtype=bool)
     found_i, found_j = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    for object_1, object_2 in zip(*_object_pairs_in_reach(objects, object_static, radius)):
-        pair_i, pair_j = _object_pair_candidates(objects, int(object_1), int(object_2), radius)
-        found_i += pair_i
-        found_j += pair_j
-    face_i, face_j = np.concatenate(found_i), np.concatenate(found_j)
-    keep = _within_conservative_bounds(bounds, face_i, face_j, radius)
-    return face_i[keep], face_j[keep]
+    for first, second in _group_pairs_in_reach(groups, group_static, radius):
+        local_1, local_2 = _group_pair_candidates(groups[first], groups[second], radius)
+        face_i, face_j = _exact_group_pairs(groups[first], groups[second], local_1, local_2, radius)
+        found_i.append(face_i)
+        found_j.append(face_j)
+    return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))
 
 
 def _object_static_flags(face_object, object_static):
@@ -222,6 +305,20 @@ def _object_static_flags(face_object, object_static):
     return np.zeros(object_count, dtype=bool)
 
 
+def _faces_of_objects(face_object, object_count):
+    """[(F_o,) int64 face indices of object o, ascending] for each object."""
+    order = np.argsort(face_object, kind="stable")
+    boundaries = np.searchsorted(face_object[order], np.arange(object_count + 1))
+    return [order[boundaries[k] : boundaries[k + 1]] for k in range(object_count)]
+
+
+def check_radius(radius):
+    """The radius as a float; ValueError unless it is a number >= 0."""
+    if not radius >= 0.0:
+        raise ValueError(f"the collision radius must be a number >= 0, got {radius}")
+    return float(radius)
+
+
 def face_pairs_within_radius(triangles, face_object, radius, object_static=None):
     """All pairs of faces of different objects within `radius` of each other.
 
@@ -229,17 +326,23 @@ def face_pairs_within_radius(triangles, face_object, radius, object_static=None)
     both static, whose triangle–triangle distance (closest_points_triangles) is <= radius.
     Each unordered pair appears once with face_i < face_j, sorted lexicographically.
 
+    This entry point takes every world triangle, so its cost grows with all faces; a caller
+    that steps the same scene repeatedly keeps static objects' FaceGroups in a
+    `StaticFaceIndex` and calls `face_pairs_between_groups` (see
+    fignetctl.core.model.scene_graph.collision_face_pairs_from_poses).
+
     triangles : (F, 3, 3) float, world coordinates
     face_object : (F,) int, the object of each face
     radius : float, the collision radius
     object_static : (O,) bool or None (None: no object is static)
     returns : face_i (P,), face_j (P,) int64
     """
-    if not radius >= 0.0:
-        raise ValueError(f"the collision radius must be a number >= 0, got {radius}")
+    radius = check_radius(radius)
     triangles = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
     face_object = np.asarray(face_object, dtype=np.int64)
     object_static = _object_static_flags(face_object, object_static)
-    face_i, face_j = _candidate_pairs(triangles, face_object, object_static, float(radius))
-    face_i, face_j = _sorted_unique_pairs(face_i, face_j, max(triangles.shape[0], 1))
-    return _pairs_within_exact_distance(triangles, face_i, face_j, float(radius))
+    groups = [
+        FaceGroup.from_triangles(faces, triangles[faces])
+        for faces in _faces_of_objects(face_object, object_static.shape[0])
+    ]
+    return face_pairs_between_groups(groups, object_static, radius, triangles.shape[0])

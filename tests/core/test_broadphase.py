@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from fignetctl.core.broadphase import brute_force_face_pairs, face_pairs_within_radius
+from fignetctl.core.broadphase import (
+    FaceGroup,
+    StaticFaceIndex,
+    brute_force_face_pairs,
+    face_pairs_between_groups,
+    face_pairs_within_radius,
+)
 from fignetctl.core.transforms import random_quaternions, transform_points
 from fignetctl.core.triangles import closest_points_triangles
 
@@ -140,3 +146,79 @@ def test_negative_or_nan_radius_is_refused():
     for radius in (-0.1, float("nan")):
         with pytest.raises(ValueError, match="radius"):
             face_pairs_within_radius(triangles, face_object, radius)
+
+
+def groups_of(triangles, face_object, object_static, static_index, pose_keys):
+    """One FaceGroup per object; static ones from `static_index` under their pose key."""
+    groups = []
+    for obj in range(len(object_static)):
+        faces = np.flatnonzero(face_object == obj)
+        build = lambda faces=faces: FaceGroup.from_triangles(faces, triangles[faces])  # noqa: E731
+        if object_static[obj]:
+            groups.append(static_index.group(obj, pose_keys[obj], build))
+        else:
+            groups.append(build())
+    return groups
+
+
+def cached_pairs(triangles, face_object, object_static, radius, static_index, pose_keys):
+    groups = groups_of(triangles, face_object, object_static, static_index, pose_keys)
+    return face_pairs_between_groups(groups, object_static, radius, len(triangles))
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.05])
+def test_cached_static_groups_give_the_brute_force_pairs_until_and_after_a_static_object_moves(radius):
+    triangles, face_object, object_static = random_scene(8)
+    index, keys = StaticFaceIndex(), {obj: b"rest" for obj in range(len(object_static))}
+    expected = brute_force_face_pairs(triangles, face_object, radius, object_static)
+    assert_same_pairs(cached_pairs(triangles, face_object, object_static, radius, index, keys), expected)
+    builds = index.builds
+    dynamic = ~object_static[face_object]
+    rng = np.random.default_rng(8)
+    for _ in range(3):  # dynamic objects move, static ones stay: nothing is rebuilt
+        moved = triangles.copy()
+        moved[dynamic] += rng.normal(0, 0.02, 3)
+        found = cached_pairs(moved, face_object, object_static, radius, index, keys)
+        assert_same_pairs(found, brute_force_face_pairs(moved, face_object, radius, object_static))
+    assert index.builds == builds
+    box = 2  # a static box: given motion changes its pose key, so its group is rebuilt
+    moved = triangles.copy()
+    moved[face_object == box] += [0.05, -0.03, 0.02]
+    stale = cached_pairs(moved, face_object, object_static, radius, index, keys)
+    keys[box] = b"moved"
+    fresh = cached_pairs(moved, face_object, object_static, radius, index, keys)
+    assert index.builds == builds + 1
+    assert_same_pairs(fresh, brute_force_face_pairs(moved, face_object, radius, object_static))
+    assert_same_pairs(stale, expected_with_static_from(triangles, moved, face_object, object_static, radius))
+
+
+def expected_with_static_from(static_source, triangles, face_object, object_static, radius):
+    """Brute-force pairs when static faces are read from `static_source` (a stale cache)."""
+    mixed = np.where(object_static[face_object][:, None, None], static_source, triangles)
+    return brute_force_face_pairs(mixed, face_object, radius, object_static)
+
+
+def test_cached_pairs_at_exactly_the_radius():
+    triangles, face_object, object_static = random_scene(9)
+    near_i, near_j = brute_force_face_pairs(triangles, face_object, 0.2, object_static)
+    _, _, near_distance = closest_points_triangles(triangles[near_i], triangles[near_j])
+    radius = float(np.sort(near_distance[near_distance > 0])[len(near_distance) // 3])
+    index, keys = StaticFaceIndex(), dict.fromkeys(range(len(object_static)), b"")
+    for r in (radius, float(np.nextafter(radius, 0.0)), radius):
+        found = cached_pairs(triangles, face_object, object_static, r, index, keys)
+        assert_same_pairs(found, brute_force_face_pairs(triangles, face_object, r, object_static))
+        assert_same_pairs(found, face_pairs_within_radius(triangles, face_object, r, object_static))
+    assert index.builds == int(object_static.sum())
+
+
+def test_a_large_static_mesh_far_from_moving_objects_gives_no_pairs():
+    ground = trimesh.creation.box(extents=[20.0, 20.0, 0.1]).subdivide().subdivide()
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    parts = [ground.vertices[ground.faces], sphere.vertices[sphere.faces] + [0.0, 0.0, 1.0]]
+    triangles = np.concatenate(parts)
+    face_object = np.repeat([0, 1], [len(p) for p in parts])
+    object_static = np.array([True, False])
+    index = StaticFaceIndex()
+    assert cached_pairs(triangles, face_object, object_static, 0.2, index, {0: b""})[0].size == 0
+    assert cached_pairs(triangles, face_object, object_static, 0.96, index, {0: b""})[0].size > 0
+    assert index.builds == 1

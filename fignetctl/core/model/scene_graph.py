@@ -23,16 +23,30 @@ Edge sets (all features relative, so translating the whole scene changes nothing
   receivers list the vertex nodes in that order, so nothing depends on a face's vertex order.
 
 Geometry is computed in float64 and only relative quantities are cast to float32.
+
+Cost follows what moves and what touches: only the vertices that become nodes are moved to
+world coordinates, and the broad phase reuses each static object's face bounds and k-d trees
+while the object keeps its pose (`SceneGeometry.static_face_group`), so a static mesh of 100k
+faces costs about what a 1k one does once it is cached (benchmarks/bench_static_scaling.py).
+`SceneGraph.vertices` (every vertex) is still there but costs O(V); read
+`SceneGraph.dynamic_vertex_positions` instead.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import torch
 
-from fignetctl.core.broadphase import face_pairs_within_radius
+from fignetctl.core.broadphase import (
+    FaceGroup,
+    StaticFaceIndex,
+    check_radius,
+    face_pairs_between_groups,
+    face_pairs_within_radius,
+)
 from fignetctl.core.model.graph import (
     FACE_FACE,
     MESH_TO_OBJECT,
@@ -87,6 +101,11 @@ class SceneGeometry:
     static : (O,) bool
     properties : (O, 3) float64, mass, friction, restitution
     surface_edges : (S, 2) int64, each undirected mesh edge once (global vertex indices)
+
+    Index arrays derived from these are computed once and kept (read-only), and
+    `static_face_index` keeps each static object's broad-phase FaceGroup at its last pose, so
+    a step costs nothing per face of static geometry that nothing comes near. The arrays
+    above are therefore not to be modified after the first graph is built.
     """
 
     rest_vertices: np.ndarray
@@ -96,21 +115,107 @@ class SceneGeometry:
     static: np.ndarray
     properties: np.ndarray
     surface_edges: np.ndarray
+    static_face_index: StaticFaceIndex = dataclasses.field(
+        default_factory=StaticFaceIndex, init=False, repr=False, compare=False
+    )
 
     @property
     def num_objects(self) -> int:
         return int(self.static.shape[0])
 
-    @property
+    @functools.cached_property
     def dynamic_vertices(self) -> np.ndarray:
         """(Vd,) the global indices of the vertices of dynamic objects, in order."""
-        return np.flatnonzero(~self.static[self.vertex_object])
+        return _read_only(np.flatnonzero(~self.static[self.vertex_object]))
 
-    def world_vertices(self, positions, quaternions):
-        """positions (O, 3), quaternions (O, 4) w x y z -> (V, 3) float64 world vertices."""
-        rotations = quat_to_matrix(np.asarray(quaternions, np.float64))[self.vertex_object]
-        rotated = np.einsum("vij,vj->vi", rotations, self.rest_vertices)
-        return rotated + np.asarray(positions, np.float64)[self.vertex_object]
+    @functools.cached_property
+    def object_vertices(self) -> list:
+        """[(V_o,) int64 global vertex indices of object o, ascending] for each object."""
+        return [_read_only(rows) for rows in _rows_of_each(self.vertex_object, self.num_objects)]
+
+    @functools.cached_property
+    def object_faces(self) -> list:
+        """[(F_o,) int64 global face indices of object o, ascending] for each object."""
+        return [_read_only(rows) for rows in _rows_of_each(self.face_object, self.num_objects)]
+
+    @functools.cached_property
+    def dynamic_face_corners(self) -> list:
+        """[(F_o, 3) rows of `dynamic_vertices` of each face of object o] (dynamic objects; None
+        for static ones)."""
+        return [
+            None if self.static[o] else _read_only(np.searchsorted(self.dynamic_vertices, self.faces[faces]))
+            for o, faces in enumerate(self.object_faces)
+        ]
+
+    @functools.cached_property
+    def surface_edges_by_lower_vertex(self):
+        """(S,) order of `surface_edges` by their lower vertex, and those lower vertices sorted."""
+        lower = self.surface_edges.min(axis=1) if len(self.surface_edges) else np.zeros(0, np.int64)
+        order = np.argsort(lower, kind="stable")
+        return _read_only(order), _read_only(lower[order])
+
+    def world_vertices(self, positions, quaternions, vertices=None):
+        """positions (O, 3), quaternions (O, 4) w x y z -> (V, 3) float64 world vertices, or
+        (n, 3) those of the global vertex indices `vertices` (n,) (the same values as the
+        rows of the full array)."""
+        rows = slice(None) if vertices is None else np.asarray(vertices, np.int64)
+        vertex_object = self.vertex_object[rows]
+        rotations = quat_to_matrix(np.asarray(quaternions, np.float64))[vertex_object]
+        rotated = np.einsum("vij,vj->vi", rotations, self.rest_vertices[rows])
+        return rotated + np.asarray(positions, np.float64)[vertex_object]
+
+    def static_face_group(self, object_index, positions, quaternions) -> FaceGroup:
+        """The broad-phase FaceGroup of a static object at its pose in (O, 3), (O, 4); kept in
+        `static_face_index` and rebuilt only when that object's pose changes."""
+        key = _pose_key(positions, quaternions, object_index)
+        return self.static_face_index.group(
+            object_index, key, lambda: self._world_face_group(object_index, positions, quaternions)
+        )
+
+    def _world_face_group(self, object_index, positions, quaternions) -> FaceGroup:
+        vertices = self.object_vertices[object_index]
+        faces = self.object_faces[object_index]
+        corners = np.searchsorted(vertices, self.faces[faces])
+        return FaceGroup(faces, self.world_vertices(positions, quaternions, vertices), corners)
+
+    def world_vertex_history(self, positions, quaternions):
+        """(T, O, 3), (T, O, 4) -> (T, V, 3) world vertices of every frame; static objects at
+        the pose of their kept FaceGroup are copied from it rather than transformed again."""
+        history = np.empty((len(positions), len(self.rest_vertices), 3))
+        for frame, (p, q) in enumerate(zip(positions, quaternions)):
+            for o, vertices in enumerate(self.object_vertices):
+                kept = self.static_face_index.kept(o, _pose_key(p, q, o)) if self.static[o] else None
+                rows = _as_slice(vertices)
+                history[frame, rows] = kept.vertices if kept is not None else self.world_vertices(p, q, vertices)
+        return history
+
+
+def _read_only(array):
+    array = np.asarray(array)
+    array.flags.writeable = False
+    return array
+
+
+def _as_slice(rows):
+    """Ascending unique indices as a slice where they are one contiguous run (cheaper to copy)."""
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
+def _rows_of_each(row_object, object_count):
+    """[(n_o,) int64 rows whose object is o, ascending] for each object."""
+    row_object = np.asarray(row_object, np.int64)
+    order = np.argsort(row_object, kind="stable")
+    boundaries = np.searchsorted(row_object[order], np.arange(object_count + 1))
+    return [order[boundaries[k] : boundaries[k + 1]] for k in range(object_count)]
+
+
+def _pose_key(positions, quaternions, object_index):
+    """Bytes that identify one object's pose (exact float64 position and quaternion)."""
+    position = np.asarray(positions, np.float64)[object_index]
+    quaternion = np.asarray(quaternions, np.float64)[object_index]
+    return position.tobytes() + quaternion.tobytes()
 
 
 def scene_geometry(meshes, scales, static, properties) -> SceneGeometry:
@@ -149,13 +254,32 @@ class SceneGraph:
     graph : MultiGraph with float32 features
     node_vertex : (N,) int64, the global vertex of each mesh node, −1 for object nodes
     num_dynamic_vertex_nodes : the first this many nodes are geometry.dynamic_vertices
-    vertices : (3, V, 3) float64 world vertices of frames t−1, t, t+1 it was built from
+    node_positions : (3, N, 3) float64 world positions of the nodes at t−1, t, t+1 (vertices
+        for mesh nodes, centres of mass for object nodes)
     """
 
     graph: MultiGraph
     node_vertex: np.ndarray
     num_dynamic_vertex_nodes: int
-    vertices: np.ndarray
+    node_positions: np.ndarray
+    geometry: SceneGeometry = dataclasses.field(repr=False)
+    poses: tuple = dataclasses.field(repr=False)
+
+    @property
+    def dynamic_vertex_positions(self) -> np.ndarray:
+        """(3, Vd, 3) world positions of geometry.dynamic_vertices at t−1, t, t+1."""
+        return self.node_positions[:, : self.num_dynamic_vertex_nodes]
+
+    @functools.cached_property
+    def vertices(self) -> np.ndarray:
+        """(3, V, 3) float64 world vertices of frames t−1, t, t+1 it was built from.
+
+        Costs O(V) (all static vertices too) on first use: read `dynamic_vertex_positions`
+        where the dynamic vertices are all that is needed.
+        """
+        history = self.geometry.world_vertex_history(*self.poses)
+        history[:, self.geometry.dynamic_vertices] = self.dynamic_vertex_positions
+        return history
 
 
 def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
@@ -164,30 +288,57 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     positions : (3, O, 3) float, quaternions : (3, O, 4) float w x y z, for frames t−1, t, t+1;
     frame t+1 is read only for static objects (their given motion); pass anything finite
     (e.g. frame t) for the dynamic ones.
+
+    Only dynamic vertices and the vertices of static faces in collision pairs are transformed
+    to world coordinates; the broad phase reuses each static object's FaceGroup while its
+    pose is unchanged (SceneGeometry.static_face_group).
     """
     positions = np.asarray(positions, np.float64)
-    vertices = np.stack([geometry.world_vertices(p, q) for p, q in zip(positions, quaternions)])
-    pair_i, pair_j = collision_face_pairs(geometry, vertices[1], config.collision_radius)
-    node_vertex, node_object = select_nodes(geometry, pair_i, pair_j)
-    node_history = np.stack(
-        [node_positions(node_vertex, node_object, v, p) for v, p in zip(vertices, positions)]
+    quaternions = np.asarray(quaternions, np.float64)
+    dynamic_history = np.stack(
+        [geometry.world_vertices(p, q, geometry.dynamic_vertices) for p, q in zip(positions, quaternions)]
     )
-    vertex_to_node = np.full(len(geometry.rest_vertices), -1, np.int64)
-    is_mesh_node = node_vertex >= 0
-    vertex_to_node[node_vertex[is_mesh_node]] = np.flatnonzero(is_mesh_node)
+    pair_i, pair_j = collision_face_pairs_from_poses(
+        geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius
+    )
+    node_vertex, node_object = select_nodes(geometry, pair_i, pair_j)
+    node_history = node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions)
+    vertex_nodes = VertexNodes(node_vertex)
     edge_sets = object_mesh_edge_sets(geometry, node_vertex, node_object, node_history[1])
-    edge_sets[FACE_FACE] = face_face_edge_set(geometry, vertices[1], pair_i, pair_j, vertex_to_node)
+    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes)
     if config.surface_edges:
-        edge_sets[NODE_NODE] = node_node_edge_set(geometry, vertices[1], vertex_to_node)
+        edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
-    return SceneGraph(graph, node_vertex, len(geometry.dynamic_vertices), vertices)
+    num_dynamic = len(geometry.dynamic_vertices)
+    return SceneGraph(graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions))
 
 
 def collision_face_pairs(geometry, vertices_now, radius):
-    """(P,), (P,) face pairs of different objects, not both static, within `radius`."""
+    """(P,), (P,) face pairs of different objects, not both static, within `radius`.
+
+    vertices_now : (V, 3) world vertices of every object (no cache: O(F) work).
+    """
     triangles = np.asarray(vertices_now, np.float64)[geometry.faces]
     return face_pairs_within_radius(triangles, geometry.face_object, radius, geometry.static)
+
+
+def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_now, quaternions_now, radius):
+    """The pairs of `collision_face_pairs`, with static objects' faces taken from the kept
+    FaceGroups of geometry.static_face_group: no work per static face that is not near a
+    moving one (after the first call at a pose).
+
+    dynamic_vertices_now : (Vd, 3) world positions of geometry.dynamic_vertices at t
+    positions_now : (O, 3), quaternions_now : (O, 4), the poses at t
+    """
+    radius = check_radius(radius)
+    groups = []
+    for o, faces in enumerate(geometry.object_faces):
+        if geometry.static[o]:
+            groups.append(geometry.static_face_group(o, positions_now, quaternions_now))
+        else:
+            groups.append(FaceGroup(faces, dynamic_vertices_now, geometry.dynamic_face_corners[o]))
+    return face_pairs_between_groups(groups, geometry.static, radius, len(geometry.faces))
 
 
 def select_nodes(geometry, pair_i, pair_j):
@@ -207,12 +358,38 @@ def select_nodes(geometry, pair_i, pair_j):
     return node_vertex.astype(np.int64), node_object.astype(np.int64)
 
 
-def node_positions(node_vertex, node_object, vertices, centres):
-    """(N, 3) positions of the nodes: vertices for mesh nodes, centres for object nodes."""
-    is_mesh_node = node_vertex >= 0
-    positions = np.asarray(centres, np.float64)[node_object]
-    positions[is_mesh_node] = np.asarray(vertices, np.float64)[node_vertex[is_mesh_node]]
-    return positions
+def node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions):
+    """(3, N, 3) node positions at t−1, t, t+1: the dynamic vertices' (given, the first nodes),
+    the static vertex nodes' (transformed here, only they) and the object centres."""
+    num_dynamic = dynamic_history.shape[1]
+    static_vertices = node_vertex[num_dynamic:][node_vertex[num_dynamic:] >= 0]
+    history = np.asarray(positions, np.float64)[:, node_object]
+    history[:, :num_dynamic] = dynamic_history
+    for frame, (p, q) in enumerate(zip(positions, quaternions)):
+        history[frame, num_dynamic : num_dynamic + len(static_vertices)] = geometry.world_vertices(p, q, static_vertices)
+    return history
+
+
+class VertexNodes:
+    """Which node each global vertex is (mesh nodes only), without an array over all vertices.
+
+    node_vertex : (N,) int64, −1 for object nodes
+    """
+
+    def __init__(self, node_vertex):
+        mesh_nodes = np.flatnonzero(node_vertex >= 0)
+        order = np.argsort(node_vertex[mesh_nodes], kind="stable")
+        self.sorted_vertices = node_vertex[mesh_nodes][order]
+        self.sorted_nodes = mesh_nodes[order]
+
+    def contains(self, vertices):
+        """(...) bool: True for vertices that are mesh nodes."""
+        at = np.minimum(np.searchsorted(self.sorted_vertices, vertices), max(len(self.sorted_vertices) - 1, 0))
+        return self.sorted_vertices[at] == vertices if len(self.sorted_vertices) else np.zeros(np.shape(vertices), bool)
+
+    def nodes(self, vertices):
+        """(...) int64: the node of each vertex (all must be mesh nodes)."""
+        return self.sorted_nodes[np.searchsorted(self.sorted_vertices, vertices)]
 
 
 def node_feature_rows(geometry, node_vertex, node_object, node_history):
@@ -257,32 +434,43 @@ def object_mesh_edge_sets(geometry, node_vertex, node_object, node_now):
     }
 
 
-def node_node_edge_set(geometry, vertices_now, vertex_to_node):
+def node_node_edge_set(geometry, node_now, vertex_nodes):
     """FIGNet's surface-mesh edges, both directions, between mesh nodes in the graph."""
-    edges = geometry.surface_edges
-    edges = edges[(vertex_to_node[edges] >= 0).all(axis=1)]
+    edges = geometry.surface_edges[surface_edges_between(geometry, vertex_nodes)]
     edges = np.concatenate([edges, edges[:, ::-1]])
-    senders, receivers = edges[:, 0], edges[:, 1]
+    senders, receivers = vertex_nodes.nodes(edges[:, 0]), vertex_nodes.nodes(edges[:, 1])
     features = relative_edge_features(
-        vertices_now[senders],
-        vertices_now[receivers],
-        geometry.rest_vertices[senders],
-        geometry.rest_vertices[receivers],
+        node_now[senders],
+        node_now[receivers],
+        geometry.rest_vertices[edges[:, 0]],
+        geometry.rest_vertices[edges[:, 1]],
     )
-    return _edge_set(NODE_NODE, features, vertex_to_node[senders], vertex_to_node[receivers])
+    return _edge_set(NODE_NODE, features, senders, receivers)
 
 
-def face_face_edge_set(geometry, vertices_now, pair_i, pair_j, vertex_to_node):
+def surface_edges_between(geometry, vertex_nodes):
+    """(E,) ascending indices of the surface edges whose two ends are both mesh nodes, found
+    from the edges of each node's vertex (no pass over all edges)."""
+    order, lower = geometry.surface_edges_by_lower_vertex
+    starts = np.searchsorted(lower, vertex_nodes.sorted_vertices, side="left")
+    ends = np.searchsorted(lower, vertex_nodes.sorted_vertices, side="right")
+    counts = ends - starts
+    offsets = np.repeat(starts - np.cumsum(counts) + counts, counts)
+    candidates = order[np.arange(counts.sum()) + offsets]
+    both = vertex_nodes.contains(geometry.surface_edges[candidates]).all(axis=1)
+    return np.sort(candidates[both])
+
+
+def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes):
     """Collision hyper-edges for the face pairs, in both directions."""
     sender_faces = np.concatenate([pair_i, pair_j])
     receiver_faces = np.concatenate([pair_j, pair_i])
-    vertices_now = np.asarray(vertices_now, np.float64)
-    features, sender_order, receiver_order = face_face_features(
-        vertices_now[geometry.faces[sender_faces]], vertices_now[geometry.faces[receiver_faces]]
-    )
-    senders = np.take_along_axis(geometry.faces[sender_faces], sender_order, axis=1)
-    receivers = np.take_along_axis(geometry.faces[receiver_faces], receiver_order, axis=1)
-    return _edge_set(FACE_FACE, features, vertex_to_node[senders], vertex_to_node[receivers])
+    sender_nodes = vertex_nodes.nodes(geometry.faces[sender_faces])
+    receiver_nodes = vertex_nodes.nodes(geometry.faces[receiver_faces])
+    features, sender_order, receiver_order = face_face_features(node_now[sender_nodes], node_now[receiver_nodes])
+    senders = np.take_along_axis(sender_nodes, sender_order, axis=1)
+    receivers = np.take_along_axis(receiver_nodes, receiver_order, axis=1)
+    return _edge_set(FACE_FACE, features, senders, receivers)
 
 
 def face_face_features(sender_triangles, receiver_triangles):

@@ -126,7 +126,7 @@ class LearnedSimulator(nn.Module):
         scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph)
         device = next(self.parameters()).device
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
-        previous, now = scene_graph.vertices[:2, geometry.dynamic_vertices]
+        previous, now = scene_graph.dynamic_vertex_positions[:2]
         next_vertices = self.postprocess(normalized, previous, now)
         return rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
 

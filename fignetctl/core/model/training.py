@@ -94,7 +94,7 @@ def training_example(simulator, scene, frame, generator, config: TrainingConfig)
     positions, quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
     positions, quaternions = jitter_frame_t(positions, quaternions, scene.geometry.static, generator, config)
     scene_graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph)
-    previous, now, after = scene_graph.vertices[:, scene.geometry.dynamic_vertices]
+    previous, now, after = scene_graph.dynamic_vertex_positions
     acceleration = torch.from_numpy((after - 2.0 * now + previous).astype(np.float32))
     return scene_graph, acceleration
 

@@ -75,10 +75,12 @@ def validate(cameras: Cameras, where: str = "cameras") -> Cameras:
     """Check shapes, finiteness and rotations; return the cameras with canonical dtypes."""
     n = len(cameras.image_names)
     names = np.asarray(cameras.image_names).astype(str)
-    K = np.asarray(cameras.K, np.float64)
-    c2w = np.asarray(cameras.c2w, np.float64)
-    points = np.asarray(cameras.points, np.float64).reshape(-1, 3) if np.size(cameras.points) else np.zeros((0, 3))
-    colors = np.asarray(cameras.point_colors).reshape(-1, 3) if np.size(cameras.point_colors) else np.zeros((0, 3), np.uint8)
+    K, c2w = _real_array(cameras.K, "K", where), _real_array(cameras.c2w, "c2w", where)
+    points = _real_array(cameras.points, "points", where)
+    colors = _real_array(cameras.point_colors, "point_colors", where)
+    if points.size % 3 or colors.size % 3:
+        raise FormatError(f"{where}: 'points' and 'point_colors' must have shape (M, 3)")
+    points, colors = points.reshape(-1, 3), colors.reshape(-1, 3)
     if n == 0:
         raise FormatError(f"{where}: holds no cameras")
     if K.shape != (n, 3, 3):
@@ -102,7 +104,17 @@ def validate(cameras: Cameras, where: str = "cameras") -> Cameras:
         raise FormatError(f"{where}: 'c2w' of camera {worst} ({names[worst]}) is not a rotation and a translation")
     if len(colors) != len(points):
         raise FormatError(f"{where}: {len(points)} points but {len(colors)} point colours")
-    return Cameras(names, K, c2w, width, height, points, np.asarray(colors, np.uint8))
+    if colors.size and (colors.min() < 0 or colors.max() > 255):
+        raise FormatError(f"{where}: 'point_colors' must lie in 0..255")
+    return Cameras(names, K, c2w, width, height, points, colors.astype(np.uint8))
+
+
+def _real_array(value, field: str, where: str) -> np.ndarray:
+    """`value` as float64, or a FormatError naming the field (strings, complex, objects)."""
+    value = np.asarray(value)
+    if value.dtype.kind not in "biuf":
+        raise FormatError(f"{where}: {field!r} must hold real numbers, got {value.dtype}")
+    return value.astype(np.float64)
 
 
 def write_cameras(path, cameras: Cameras) -> None:
@@ -137,7 +149,7 @@ def read_cameras(path) -> Cameras:
     if fmt != FORMAT:
         raise FormatError(f"{path}: 'format' is {fmt!r}, expected {FORMAT!r}")
     version = arrays.get("format_version")
-    if version is None or version.shape != () or int(version) != FORMAT_VERSION:
+    if version is None or version.shape != () or version.dtype.kind not in "iu" or int(version) != FORMAT_VERSION:
         raise FormatError(
             f"{path}: format_version {None if version is None else version.tolist()!r} is not supported "
             f"(this fignetctl reads {FORMAT_VERSION})"

@@ -276,7 +276,10 @@ def object_box_from_points(points_per_view, names, settings: ExtractionSettings)
     """Per-view 3D points of the masks -> V_o (2, 3), padded; checks the views agree."""
     boxes = [robust_box(p, settings.trim_percent) for p in points_per_view]
     check_views_agree(boxes, names)
-    return padded_box(robust_box(np.concatenate(points_per_view), settings.trim_percent), settings.padding)
+    box = padded_box(robust_box(np.concatenate(points_per_view), settings.trim_percent), settings.padding)
+    if not np.all(np.isfinite(box)) or not (box[1] - box[0]).max() > 0:
+        raise FignetError("the masks' 3D points all coincide (a box of size 0); give masks that cover the object")
+    return box
 
 
 def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
@@ -393,4 +396,20 @@ def load_obj(path):
         raise FignetError(f"{path}: not a readable .obj mesh ({type(error).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise FignetError(f"{path}: holds no triangles")
+    _check_obj_geometry(mesh, path)
     return mesh
+
+
+def _check_obj_geometry(mesh, path) -> None:
+    """Finite float32 vertices, faces that index them, and at least one face with an area."""
+    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise FignetError(f"{path}: vertices must have 3 coordinates and faces 3 corners")
+    if not np.all(np.isfinite(vertices)) or np.abs(vertices).max() > np.finfo(np.float32).max:
+        raise FignetError(f"{path}: holds vertices that are NaN, infinite or beyond float32")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise FignetError(f"{path}: a face refers to a vertex that does not exist")
+    corners = vertices[faces]
+    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    if not np.any(areas > 0):
+        raise FignetError(f"{path}: every triangle has zero area")

@@ -158,10 +158,12 @@ def parse_prompts(texts, cameras) -> dict:
         view, _, pixel = text.rpartition(":")
         try:
             u, v = (int(round(float(x))) for x in pixel.split(","))
-        except ValueError:
+        except (ValueError, OverflowError):
             raise FignetError(f"--prompt {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)") from None
         if not view:
             raise FignetError(f"--prompt {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)")
+        if not (0 <= u < cameras.width and 0 <= v < cameras.height):
+            raise FignetError(f"--prompt {text!r}: pixel {u},{v} is outside the {cameras.width}x{cameras.height} image")
         prompts.setdefault(view_index(view, cameras), []).append((u, v))
     return prompts
 
@@ -182,7 +184,7 @@ def read_prompts_json(path, cameras, object_name=None) -> dict:
         texts = [f"{p['image']}:{int(p['u'])},{int(p['v'])}" for p in points]
     except FileNotFoundError:
         raise FormatError(f"{path}: no such file") from None
-    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as error:
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError, RecursionError) as error:
         raise FormatError(f"{path}: not a usable prompts.json ({type(error).__name__}: {error})") from None
     return parse_prompts(texts, cameras)
 

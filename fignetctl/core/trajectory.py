@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.hdf5_guard import read_guarded
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.trajectories"
@@ -155,22 +156,80 @@ def read_trajectories(path, trajectory_ids=None) -> TrajectoryFile:
     does not follow the format (missing fields, wrong shapes or dtypes, non-unit
     quaternions, faces out of range, non-finite numbers, unknown format versions).
     """
-    import h5py
 
     path = Path(path)
     if not path.is_file():
         raise FormatError(f"{path}: no such file")
+    _check_global_heaps(path)
+    return read_guarded(_read_unguarded, path, trajectory_ids)
+
+
+def _read_unguarded(path: Path, trajectory_ids) -> TrajectoryFile:
+    import h5py
+
     try:
         with h5py.File(path, "r") as f:
             data = _read_open_file(f, str(path), trajectory_ids)
     except FormatError:
         raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError) as error:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError, MemoryError) as error:
         # h5py reports damaged files with any of these, depending on where the damage is
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise FormatError(f"{path}: not a readable HDF5 trajectory file ({reason})") from None
     _validate(data, str(path))
     return data
+
+
+def _check_global_heaps(path: Path) -> None:
+    """Refuse a file whose HDF5 global heap collections the HDF5 library would loop on forever.
+
+    Variable-length strings (the 'format' attribute, 'mesh_names') live in global heap
+    collections ("GCOL" blocks). HDF5 walks a collection's objects by their stored sizes; a
+    free-space object (index 0) of size 0 does not advance the walk, and the library spins
+    in C, where no timeout or signal reaches it. Walking the same way here first is cheap
+    (one scan for the signature) and turns that damage into a FormatError.
+    """
+    import mmap
+
+    with open(path, "rb") as file:
+        if path.stat().st_size == 0:
+            return
+        with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            length_size = _superblock_length_size(data)
+            start = data.find(b"GCOL")
+            while start >= 0:
+                if not _global_heap_walk_ends(data, start, length_size):
+                    raise FormatError(f"{path}: not a readable HDF5 trajectory file (damaged global heap at byte {start})")
+                start = data.find(b"GCOL", start + 4)
+
+
+def _superblock_length_size(data) -> int:
+    """Bytes per 'length' field, from the superblock at byte 0 (8, h5py's, when unreadable)."""
+    if data[:8] != b"\x89HDF\r\n\x1a\n" or len(data) < 16:
+        return 8
+    size = data[14] if data[8] in (0, 1) else data[10]
+    return size if size in (2, 4, 8) else 8
+
+
+def _global_heap_walk_ends(data, start: int, length_size: int) -> bool:
+    """Walk the collection at `start` as HDF5's H5HG__cache_heap_deserialize does: True when
+    every step advances and stays inside the collection (or this is no version-1 collection)."""
+    header = 8 + length_size
+    if start + header > len(data) or data[start + 4] != 1:
+        return True
+    end = start + int.from_bytes(data[start + 8 : start + header], "little")
+    object_header = 8 + length_size
+    position = start + header
+    while position < min(end, len(data)):
+        if position + object_header > end:
+            return True  # a tail too small for an object header is free space
+        index = int.from_bytes(data[position : position + 2], "little")
+        size = int.from_bytes(data[position + 8 : position + object_header], "little")
+        step = object_header + (size + 7) // 8 * 8 if index > 0 else size
+        if step == 0 or position + step > end:
+            return False
+        position += step
+    return True
 
 
 def _read_open_file(f, where: str, trajectory_ids) -> TrajectoryFile:
@@ -217,7 +276,7 @@ def _read_mesh(group, where: str) -> Mesh:
     for field in ("vertices", "faces"):
         if field not in group:
             raise FormatError(f"{where}: missing field {field!r}")
-    return Mesh(vertices=group["vertices"][()], faces=group["faces"][()])
+    return Mesh(vertices=_read_dataset(group, "vertices", where), faces=_read_dataset(group, "faces", where))
 
 
 def _read_one(group, where: str) -> Trajectory:
@@ -225,10 +284,29 @@ def _read_one(group, where: str) -> Trajectory:
     for field in required:
         if field not in group:
             raise FormatError(f"{where}: missing field {field!r}")
-    names = np.array([_plain(n) for n in group["mesh_names"][()]], dtype=object)
-    values = {field: group[field][()] for field in required[1:]}
-    extras = {k: group[k][()] for k in group.keys() if k not in required}
+    names = np.array([_plain(n) for n in np.atleast_1d(_read_dataset(group, "mesh_names", where))], dtype=object)
+    values = {field: _read_dataset(group, field, where) for field in required[1:]}
+    extras = {k: _read_dataset(group, k, where) for k in group.keys() if k not in required}
     return Trajectory(mesh_names=names, extras=extras, **values)
+
+
+# Deflate (gzip) compresses at most ~1032:1, so a dataset far larger than its stored bytes is
+# mostly never-written chunks: a damaged or hostile shape, not data.
+_MOST_EXPANSION = 1100
+_SMALL_DATASET_BYTES = 1 << 20
+
+
+def _read_dataset(group, field: str, where: str) -> np.ndarray:
+    """group[field] as an array, after checking that it is a dataset of a plausible size."""
+    import h5py
+
+    dataset = group[field]
+    if not isinstance(dataset, h5py.Dataset):
+        raise FormatError(f"{where}: {field!r} is not a dataset")
+    nbytes = int(np.prod(dataset.shape, dtype=np.float64) * dataset.dtype.itemsize) if dataset.shape else 0
+    if nbytes > _SMALL_DATASET_BYTES and nbytes > _MOST_EXPANSION * dataset.id.get_storage_size():
+        raise FormatError(f"{where}: field {field!r} claims shape {dataset.shape} but the file stores almost none of it")
+    return dataset[()]
 
 
 def _plain(value):

@@ -62,7 +62,10 @@ def validate_volume(volume: Volume, where: str = "volume") -> Volume:
     """Check shapes, finiteness and box order; return the volume with float64 vectors."""
     values = {}
     for field in (*_VECTORS, "environment_origin"):
-        value = np.asarray(getattr(volume, field), np.float64)
+        value = np.asarray(getattr(volume, field))
+        if value.dtype.kind not in "biuf":
+            raise FormatError(f"{where}: field {field!r} must hold real numbers, got {value.dtype}")
+        value = value.astype(np.float64)
         if value.shape != (3,):
             raise FormatError(f"{where}: field {field!r} must have shape (3,), got {value.shape}")
         if not np.all(np.isfinite(value)):
@@ -74,6 +77,8 @@ def validate_volume(volume: Volume, where: str = "volume") -> Volume:
     for field in ("object_mesh", "environment_mesh"):
         if not str(getattr(volume, field)):
             raise FormatError(f"{where}: field {field!r} is empty")
+    if not isinstance(volume.settings, dict):
+        raise FormatError(f"{where}: field 'settings' must be a json object")
     return dataclasses.replace(volume, **values, object_mesh=str(volume.object_mesh), environment_mesh=str(volume.environment_mesh))
 
 
@@ -112,9 +117,12 @@ def read_volume(path) -> Volume:
     for field in (*_VECTORS, "object_mesh", "environment_mesh"):
         if field not in arrays:
             raise FormatError(f"{path}: missing field {field!r}")
+    for field in ("object_mesh", "environment_mesh", *(("settings",) if "settings" in arrays else ())):
+        if arrays[field].shape != () or arrays[field].dtype.kind != "U":
+            raise FormatError(f"{path}: field {field!r} must be one string, got {arrays[field].shape} {arrays[field].dtype}")
     try:
         settings = json.loads(str(arrays["settings"])) if "settings" in arrays else {}
-    except ValueError:
+    except (ValueError, RecursionError):
         raise FormatError(f"{path}: field 'settings' is not json") from None
     volume = Volume(
         **{field: arrays[field] for field in _VECTORS},

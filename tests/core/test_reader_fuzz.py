@@ -8,7 +8,7 @@ from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.scene_graph import GraphConfig
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
-from fignetctl.errors import FormatError
+from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
 
 
@@ -56,3 +56,290 @@ def test_tiny_garbage_is_refused(tmp_path, content):
         path.write_bytes(content)
         with pytest.raises(FormatError):
             reader(path)
+
+
+# --- Damage that the HDF5 C library does not survive (found by fuzzing seeds 2, 162, 210) ---
+
+
+def _global_heap_free_space_emptied(original: bytes) -> bytes:
+    """The free-space object of the first global heap collection given size 0: HDF5 2.0 then
+    loops forever while reading the 'format' attribute (the fuzzing seed-2 hang)."""
+    data = bytearray(original)
+    start = data.index(b"GCOL")
+    end = start + int.from_bytes(data[start + 8 : start + 16], "little")
+    position = start + 16
+    while position + 16 <= end:
+        index = int.from_bytes(data[position : position + 2], "little")
+        size = int.from_bytes(data[position + 8 : position + 16], "little")
+        if index == 0:
+            data[position + 8 : position + 16] = bytes(8)
+            return bytes(data)
+        position += 16 + (size + 7) // 8 * 8
+    raise AssertionError("no free space in the global heap")
+
+
+def _string_type_damaged(original: bytes) -> bytes:
+    """The 'format' attribute's variable-length string datatype given an invalid kind: HDF5
+    2.0 then crashes with a segmentation fault reading it (the fuzzing seed-162 crash)."""
+    data = bytearray(original)
+    message = data.index(b"format\x00\x00\x19\x01") + 8
+    data[message + 1] = 0xA9
+    return bytes(data)
+
+
+@pytest.mark.parametrize("damage", [_global_heap_free_space_emptied, _string_type_damaged])
+def test_damage_that_stops_the_hdf5_library_is_refused(tmp_path, damage):
+    original = write_trajectories(tmp_path / "t.h5", box_drop_file(frames=6), compression=None).read_bytes()
+    path = tmp_path / "damaged.h5"
+    path.write_bytes(damage(original))
+    with pytest.raises(FormatError, match="damaged"):
+        read_trajectories(path)
+
+
+def test_trajectory_reader_on_more_damage_patterns(tmp_path):
+    """Bit flips, zeroed runs and 0xff runs on plain and gzip files (seeds beside the above)."""
+    rng = np.random.default_rng(7)
+    for compression in (None, "gzip"):
+        original = write_trajectories(tmp_path / "t.h5", box_drop_file(frames=6), compression=compression).read_bytes()
+        for index in range(40):
+            damaged = np.frombuffer(original, np.uint8).copy()
+            start = int(rng.integers(0, len(original)))
+            kind = index % 3
+            if kind == 0:
+                spots = rng.integers(0, len(original), size=4)
+                damaged[spots] ^= (1 << rng.integers(0, 8, size=4)).astype(np.uint8)
+            else:
+                damaged[start : start + int(rng.integers(1, 64))] = 0 if kind == 1 else 255
+            path = tmp_path / f"damaged-{compression}-{index}.h5"
+            path.write_bytes(damaged.tobytes())
+            _accepts_or_refuses_clearly(read_trajectories, path)
+
+
+# --- Other readers: damaged copies and wrong-but-valid containers ---
+
+
+def _refuses_clearly(reader, path, error=FignetError):
+    with pytest.raises(error) as caught:
+        reader(path)
+    assert "\n" not in str(caught.value)
+
+
+def _cameras_file(path):
+    from fignetctl.core.cameras import Cameras, write_cameras
+
+    c2w = np.tile(np.eye(4), (8, 1, 1))
+    c2w[:, :3, 3] = np.arange(24).reshape(8, 3)
+    K = np.tile(np.array([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]]), (8, 1, 1))
+    names = np.array([f"v{i}.png" for i in range(8)])
+    write_cameras(path, Cameras(names, K, c2w, 64, 48, np.zeros((5, 3)), np.zeros((5, 3), np.uint8)))
+    return path
+
+
+def _volume_file(path):
+    from fignetctl.core.volume import Volume, write_volume
+
+    return write_volume(path, Volume(np.zeros(3), np.ones(3), np.full(3, 0.5), -np.ones(3), 2 * np.ones(3)))
+
+
+def _nerf_file(path):
+    from fignetctl.core.nerf.config import NerfConfig
+    from fignetctl.core.nerf.io import save_nerf
+    from fignetctl.core.nerf.model import NerfModel
+
+    config = NerfConfig(grid_resolution_initial=8, grid_resolution=8, feature_resolution=8, feature_channels=4, mlp_width=8)
+    return save_nerf(path, NerfModel(config, [[-1, -1, -1], [1, 1, 1]]))
+
+
+def _obj_file(path):
+    import trimesh
+
+    trimesh.creation.box().export(path)
+    return path
+
+
+def _readers():
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.nerf.io import load_nerf
+    from fignetctl.core.volume import read_volume
+
+    return {
+        "cameras.npz": (read_cameras, _cameras_file),
+        "volume.npz": (read_volume, _volume_file),
+        "nerf.pt": (load_nerf, _nerf_file),
+        "box.obj": (load_obj, _obj_file),
+    }
+
+
+@pytest.mark.parametrize("name", ["cameras.npz", "volume.npz", "nerf.pt", "box.obj"])
+def test_other_readers_on_damaged_and_foreign_files(tmp_path, name):
+    readers = _readers()
+    reader, make = readers[name]
+    original = make(tmp_path / name).read_bytes()
+    rng = np.random.default_rng(3)
+    for index, content in enumerate(_damaged_copies(original, rng, 25)):
+        path = tmp_path / f"damaged-{index}-{name}"
+        path.write_bytes(content)
+        try:
+            reader(path)
+        except FignetError as error:
+            assert "\n" not in str(error)
+    for other, (_, make_other) in readers.items():
+        if other != name and not (name == "box.obj"):
+            _refuses_clearly(reader, make_other(tmp_path / f"foreign-{other}"))
+
+
+def _npz_with(tmp_path, make, name, **changes):
+    good = dict(np.load(make(tmp_path / f"good-{name}")))
+    path = tmp_path / f"changed-{name}"
+    np.savez(path, **{**good, **changes})
+    return path
+
+
+@pytest.mark.parametrize("changes", [
+    {"K": np.array([["a"] * 3] * 3)}, {"K": np.zeros((8, 3, 3)) + 1j}, {"points": np.arange(4.0)},
+    {"point_colors": np.array(["x"] * 5)}, {"format_version": np.array("1")}, {"format_version": np.array(1.5)},
+    {"width": np.arange(3)}, {"width": np.array("wide")}, {"c2w": np.full((8, 4, 4), np.nan)},
+])
+def test_cameras_npz_with_wrong_fields(tmp_path, changes):
+    from fignetctl.core.cameras import read_cameras
+
+    _refuses_clearly(read_cameras, _npz_with(tmp_path, _cameras_file, "cameras.npz", **changes), FormatError)
+
+
+@pytest.mark.parametrize("changes", [
+    {"lower": np.array(["a", "b", "c"])}, {"lower": np.zeros(3) + 1j}, {"settings": np.array("[1, 2]")},
+    {"settings": np.array("{")}, {"object_mesh": np.zeros((2, 2))}, {"environment_origin": np.array("x")},
+    {"format_version": np.array("1")}, {"origin": np.zeros(4)},
+])
+def test_volume_npz_with_wrong_fields(tmp_path, changes):
+    from fignetctl.core.volume import read_volume
+
+    _refuses_clearly(read_volume, _npz_with(tmp_path, _volume_file, "volume.npz", **changes), FormatError)
+
+
+@pytest.mark.parametrize("changes", [
+    {"config": "{"}, {"config": "[1]"}, {"config": {"a": 1}}, {"bounds": [[0, 0], [1, 1]]},
+    {"bounds": [[1, 1, 1], [-1, -1, -1]]}, {"bounds": [[float("nan")] * 3, [1] * 3]},
+    {"density_shape": [-1, 8, 8]}, {"density_shape": [800, 800, 800]}, {"model": {}}, {"metrics": "{"},
+])
+def test_nerf_file_with_wrong_fields(tmp_path, changes):
+    import torch
+
+    from fignetctl.core.nerf.io import load_nerf
+
+    payload = torch.load(_nerf_file(tmp_path / "nerf.pt"), weights_only=True)
+    torch.save({**payload, **changes}, tmp_path / "changed.pt")
+    _refuses_clearly(load_nerf, tmp_path / "changed.pt", FormatError)
+
+
+def test_model_file_with_wrong_fields(tmp_path):
+    import torch
+
+    simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1)))
+    payload = torch.load(save_checkpoint(tmp_path / "m.pt", simulator), weights_only=True)
+    nan_weights = {k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in payload["model"].items()}
+    for index, changes in enumerate([
+        {"simulator_config": "{"}, {"simulator_config": "[1]"}, {"simulator_config": {"a": 1}},
+        {"simulator_config": payload["simulator_config"].replace("0.1", "NaN")}, {"model": {}},
+        {"model": torch.zeros(3)}, {"model": nan_weights},
+    ]):
+        torch.save({**payload, **changes}, tmp_path / f"changed-{index}.pt")
+        _refuses_clearly(load_checkpoint, tmp_path / f"changed-{index}.pt", FormatError)
+    torch.save({**payload, "training_state": "garbage"}, tmp_path / "state.pt")
+    _refuses_clearly(lambda p: load_checkpoint(p, with_training_state=True), tmp_path / "state.pt", FormatError)
+    _refuses_clearly(load_checkpoint, _nerf_file(tmp_path / "nerf.pt"), FormatError)
+
+
+_TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
+
+
+@pytest.mark.parametrize("text", [
+    "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v inf 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+    "v 1e300 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", _TRIANGLE + "f 1 2 9\n", _TRIANGLE + "f -1 -2 -7\n",
+    _TRIANGLE, "", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n",
+    "hello world\nf a b c\n", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", "\x00\xff\xfe" * 100,
+])
+def test_obj_that_is_no_usable_mesh(tmp_path, text):
+    from fignetctl.core.mesh_extraction import load_obj
+
+    path = tmp_path / "bad.obj"
+    path.write_bytes(text.encode("latin-1"))
+    _refuses_clearly(load_obj, path)
+
+
+def test_obj_with_holes_and_some_zero_area_faces_is_read(tmp_path):
+    """An open box (a hole) with one extra zero-area face is a usable mesh: it is read as is."""
+    import trimesh
+
+    from fignetctl.core.mesh_extraction import load_obj
+
+    box = trimesh.creation.box()
+    faces = np.vstack([box.faces[2:], [[0, 0, 1]]])
+    trimesh.Trimesh(box.vertices, faces, process=False).export(tmp_path / "open.obj")
+    mesh = load_obj(tmp_path / "open.obj")
+    assert len(mesh.faces) == len(faces) and np.all(np.isfinite(mesh.vertices))
+
+
+@pytest.mark.parametrize("document", [
+    [1, 2], {"format": "fignetctl.prompts", "format_version": 1, "objects": {"a": 1}},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": "abc"}]},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": []},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
+        {"image": "v0.png", "u": 1e400, "v": 2}, {"image": "v1.png", "u": 1, "v": 2}]}]},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
+        {"image": "v0.png", "u": float("nan"), "v": 2}]}]},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
+        {"image": "v0.png", "u": 1e30, "v": 2}, {"image": "v1.png", "u": -5, "v": 2}]}]},
+    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
+        {"image": "nope.png", "u": 1, "v": 2}]}]},
+])
+def test_prompts_json_of_the_wrong_shape(tmp_path, document):
+    import json
+
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.object_extraction import read_prompts_json
+
+    cameras = read_cameras(_cameras_file(tmp_path / "cameras.npz"))
+    path = tmp_path / "prompts.json"
+    path.write_text(json.dumps(document))
+    _refuses_clearly(lambda p: read_prompts_json(p, cameras), path)
+    path.write_text("[" * 100000 + "]" * 100000)
+    _refuses_clearly(lambda p: read_prompts_json(p, cameras), path)
+
+
+def test_trajectory_file_of_the_wrong_shape(tmp_path):
+    import shutil
+
+    import h5py
+
+    good = write_trajectories(tmp_path / "good.h5", box_drop_file(frames=4), compression=None)
+
+    def replaced(group, name, value):
+        def change(f):
+            del f[group][name]
+            f[group].create_dataset(name, data=value)
+        return change
+
+    def huge_sparse_positions(f):
+        del f["trajectories/00000/positions"]
+        f["trajectories/00000"].create_dataset("positions", shape=(10**7, 10**6, 3), dtype="f4", chunks=(1, 1000, 3))
+
+    def mesh_is_a_dataset(f):
+        del f["meshes/box"]
+        f["meshes"].create_dataset("box", data=np.zeros(3))
+
+    changes = [
+        replaced("trajectories/00000", "positions", np.array([b"abc"] * 4)),
+        replaced("trajectories/00000", "mesh_names", np.arange(2)),
+        replaced("trajectories/00000", "mass", np.zeros(2, dtype=[("a", "f4"), ("b", "i4")])),
+        replaced("meshes/box", "vertices", np.zeros((3, 3), np.complex64)),
+        mesh_is_a_dataset, huge_sparse_positions,
+        lambda f: f.attrs.__setitem__("dt", "fast"), lambda f: f.attrs.__setitem__("gravity", "down"),
+    ]
+    for index, change in enumerate(changes):
+        path = tmp_path / f"changed-{index}.h5"
+        shutil.copy(good, path)
+        with h5py.File(path, "a") as f:
+            change(f)
+        _refuses_clearly(read_trajectories, path, FormatError)

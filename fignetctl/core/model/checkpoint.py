@@ -13,6 +13,7 @@ not fit the stored settings raise FormatError with what to do.
 
 from __future__ import annotations
 
+import math
 from importlib import resources
 from pathlib import Path
 
@@ -78,14 +79,29 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
 
     payload = read_checkpoint_payload(path)
     try:
-        simulator = LearnedSimulator(SimulatorConfig.from_json(payload["simulator_config"]))
+        config = SimulatorConfig.from_json(payload["simulator_config"])
+        radius = float(config.graph.collision_radius)
+        if not (math.isfinite(radius) and radius > 0):
+            raise ValueError(f"collision_radius {radius} is not a positive number")
+        simulator = LearnedSimulator(config)
         simulator.load_state_dict(payload["model"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, RecursionError) as error:
         raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
+    _check_finite_state(simulator, path)
+    training_state = payload.get("training_state")
+    if with_training_state and training_state is not None and not isinstance(training_state, dict):
+        raise FormatError(f"{path}: 'training_state' is not a dictionary; the file cannot be resumed")
     simulator.to(device).eval()
     if with_training_state:
-        return simulator, payload.get("training_state")
+        return simulator, training_state
     return simulator
+
+
+def _check_finite_state(simulator, path) -> None:
+    """A FormatError naming the first weight or statistic that holds NaN or inf."""
+    for name, value in simulator.state_dict().items():
+        if value.is_floating_point() and not torch.isfinite(value).all():
+            raise FormatError(f"{path}: {name!r} holds NaN or inf; the model cannot be used")
 
 
 def export_checkpoint(source, destination) -> Path:

@@ -9,7 +9,7 @@ from fignetctl.commands import options
 @click.argument("images_dir", type=click.Path(file_okay=False))
 @click.argument("cameras", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="nerf.pt to write; checkpointed while training.")
-@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast", show_default=True, help="fast: <=200 px images, 128^3 grid; quality: <=400 px, 192^3.")
+@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast", show_default=True, help="fast: <=200 px images, diffuse colour, 64 -> 192 grid; quality: <=400 px, colour MLP, 64 -> 320.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps (a resumed run continues to this).  [default: the preset's]")
 @click.option("--max-image-side", type=click.IntRange(min=8), default=None, help="Downscale images so the longer side is at most this.  [default: the preset's]")
 @click.option("--holdout-every", type=click.IntRange(min=0), default=None, help="Hold out views 0, k, 2k, ... for evaluation (0: none).  [default: 8]")

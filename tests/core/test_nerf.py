@@ -168,10 +168,10 @@ def test_scaled_intrinsics_keep_the_ray_through_the_same_image_point():
 
 
 def test_scene_bounds_cover_points_and_stop_at_surrounding_cameras():
-    points = np.random.default_rng(0).uniform([-5, -5, 0], [5, 5, 0.5], (500, 3))
+    points = np.random.default_rng(0).uniform([-50, -50, 0], [50, 50, 0.5], (500, 3))  # a floor to the horizon
     _, c2w = orbit(8, radius=2.0)
     low, high = scene_bounds(points, c2w, margin=0.1)
-    assert high[0] - low[0] < 5.0  # limited to the camera ring along x, y
+    assert high[0] - low[0] < 15.0  # limited to the camera ring (+ its look-at distance) along x, y
     assert low[2] < 0.0 and high[2] > 0.5
 
 
@@ -243,3 +243,25 @@ def test_images_that_do_not_match_the_cameras_are_refused(scene, tmp_path):
     smaller = dataclasses.replace(cameras, width=16, height=12)
     with pytest.raises(FormatError, match="do not match"):
         make_trainer(images, smaller, TINY)
+
+
+def test_diffuse_growing_colour_grid_with_termination_resumes_and_round_trips(scene, tmp_path):
+    """The fast preset's shape: no MLP, the colour grid grows with the density grid, early ray
+    termination in training; a resumed run matches and the file loads at the grown sizes."""
+    images, _, cameras = scene
+    config = dataclasses.replace(TINY, steps=12, occupancy_warmup=3, occupancy_every=3, grid_resolution_initial=12, grid_resolution=24,
+                                 upsample_steps=(6,), feature_resolution_initial=8, feature_resolution=16, feature_channels=3, mlp_width=0,
+                                 transmittance_threshold=1e-3)
+    straight = make_trainer(images, cameras, config)
+    straight.run()
+    assert straight.model.field.colour_mlp is None
+    assert max(straight.model.field.feature_grid.shape[2:]) == 16 and max(straight.model.field.density_grid.shape[2:]) == 24
+    first = make_trainer(images, cameras, config)
+    first.run(tmp_path / "nerf.pt", until_step=8)
+    resumed = make_trainer(images, cameras, config, resume_from=tmp_path / "nerf.pt")
+    resumed.run(tmp_path / "nerf.pt")
+    for a, b in zip(straight.model.state_dict().values(), resumed.model.state_dict().values()):
+        assert torch.allclose(a.float(), b.float(), atol=1e-5)
+    loaded = load_nerf(tmp_path / "nerf.pt")
+    camera = (cameras.K[0], cameras.c2w[0], cameras.width, cameras.height)
+    assert np.allclose(loaded.render(camera).rgb, resumed.model.render(camera).rgb, atol=1e-5)

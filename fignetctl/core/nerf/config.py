@@ -21,11 +21,14 @@ class NerfConfig:
     upsample_steps: tuple = (400, 900)
     """Steps at which the density grid grows, geometrically from initial to final resolution."""
     feature_resolution: int = 64
-    """Colour-feature grid vertices along the longest side (fixed)."""
+    """Colour-feature grid vertices along the longest side at the end."""
+    feature_resolution_initial: int = 0
+    """... and at the start, growing with the density grid at `upsample_steps` (0: fixed at `feature_resolution`)."""
     feature_channels: int = 12
     """Channels of the colour-feature grid; the first three are a diffuse colour."""
     mlp_width: int = 64
-    """Hidden width of the colour MLP (features + view direction in degree-2 SH -> RGB residual)."""
+    """Hidden width of the colour MLP (features + view direction in degree-2 SH -> RGB residual);
+    0: no MLP, colour = sigmoid(first three features) (diffuse only, cheapest)."""
     step_ratio: float = 0.5
     """Distance between samples along a ray, in voxels of the current density grid."""
     alpha_init: float = 1e-3
@@ -39,6 +42,9 @@ class NerfConfig:
     """No empty-space skipping before this step."""
     weight_threshold: float = 1e-4
     """Samples whose compositing weight is below this skip the colour query."""
+    transmittance_threshold: float = 0.0
+    """In training after `occupancy_warmup`, samples behind which less than this fraction of light
+    is left are dropped by a gradient-free density pass (early ray termination; 0: off)."""
     steps: int = 1500
     """Optimiser steps."""
     rays_per_batch: int = 4096
@@ -76,17 +82,45 @@ class NerfConfig:
         ratio = (self.grid_resolution / self.grid_resolution_initial) ** (done / stages)
         return int(round(self.grid_resolution_initial * ratio))
 
+    def feature_resolution_at(self, step: int) -> int:
+        """Colour-feature grid resolution (longest side) in force at `step`."""
+        stages = len(self.upsample_steps)
+        if self.feature_resolution_initial <= 0 or stages == 0:
+            return self.feature_resolution
+        done = sum(1 for s in self.upsample_steps if step >= s)
+        ratio = (self.feature_resolution / self.feature_resolution_initial) ** (done / stages)
+        return int(round(self.feature_resolution_initial * ratio))
+
 
 PRESETS = {
-    "fast": NerfConfig(),
+    # fast: a diffuse colour grid (no MLP) that grows with the density grid, over a box that
+    # takes in the walls; early ray termination in training.
+    "fast": NerfConfig(
+        grid_resolution_initial=64,
+        grid_resolution=192,
+        upsample_steps=(80, 200),
+        feature_resolution_initial=64,
+        feature_resolution=192,
+        feature_channels=3,
+        mlp_width=0,
+        occupancy_warmup=20,
+        transmittance_threshold=1e-3,
+        bounds_margin=0.05,
+        steps=400,
+    ),
     "quality": NerfConfig(
         max_image_side=400,
-        grid_resolution_initial=80,
-        grid_resolution=192,
-        upsample_steps=(1000, 2000, 3000),
-        feature_resolution=96,
-        mlp_width=96,
-        steps=6000,
+        grid_resolution_initial=64,
+        grid_resolution=320,
+        upsample_steps=(150, 400, 800),
+        feature_resolution_initial=64,
+        feature_resolution=256,
+        feature_channels=12,
+        mlp_width=64,
+        occupancy_warmup=20,
+        transmittance_threshold=1e-3,
+        bounds_margin=0.05,
+        steps=2000,
         rays_per_batch=8192,
         tv_weight=0.0,
         checkpoint_every=500,

@@ -53,7 +53,7 @@ def spherical_harmonics_degree2(directions):
 class GridField(nn.Module):
     """F(x, d) -> (σ, rgb) on a box. `density` and `colour` take world points."""
 
-    def __init__(self, bounds, config, density_resolution=None):
+    def __init__(self, bounds, config, density_resolution=None, feature_resolution=None):
         super().__init__()
         bounds = torch.as_tensor(np.asarray(bounds, np.float64), dtype=torch.float32)
         self.register_buffer("bounds", bounds)
@@ -63,17 +63,22 @@ class GridField(nn.Module):
         self.density_shift = math.log(math.expm1(-math.log(1.0 - config.alpha_init) / config.step_ratio))
         resolution = config.grid_resolution_initial if density_resolution is None else density_resolution
         self.density_grid = nn.Parameter(torch.zeros(1, 1, *grid_shape(bounds.numpy(), resolution)))
-        features = torch.zeros(1, config.feature_channels, *grid_shape(bounds.numpy(), config.feature_resolution))
+        if feature_resolution is None:
+            feature_resolution = config.feature_resolution_at(0)
+        features = torch.zeros(1, config.feature_channels, *grid_shape(bounds.numpy(), feature_resolution))
         self.feature_grid = nn.Parameter(features)
-        self.colour_mlp = nn.Sequential(
-            nn.Linear(config.feature_channels + 9, config.mlp_width),
-            nn.ReLU(inplace=True),
-            nn.Linear(config.mlp_width, config.mlp_width),
-            nn.ReLU(inplace=True),
-            nn.Linear(config.mlp_width, 3),
-        )
-        nn.init.zeros_(self.colour_mlp[-1].weight)
-        nn.init.zeros_(self.colour_mlp[-1].bias)
+        if config.mlp_width > 0:
+            self.colour_mlp = nn.Sequential(
+                nn.Linear(config.feature_channels + 9, config.mlp_width),
+                nn.ReLU(inplace=True),
+                nn.Linear(config.mlp_width, config.mlp_width),
+                nn.ReLU(inplace=True),
+                nn.Linear(config.mlp_width, 3),
+            )
+            nn.init.zeros_(self.colour_mlp[-1].weight)
+            nn.init.zeros_(self.colour_mlp[-1].bias)
+        else:  # diffuse colour only: the first three features
+            self.colour_mlp = None
 
     # -- geometry of the grids --------------------------------------------------------------
     def normalize(self, points):
@@ -103,6 +108,8 @@ class GridField(nn.Module):
     def colour(self, points, directions):
         """RGB (P, 3) in [0, 1] at world points seen along directions (P, 3), any length."""
         features = sample_grid(self.feature_grid, self.normalize(points))
+        if self.colour_mlp is None:
+            return torch.sigmoid(features[:, :3])
         unit = directions / directions.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         residual = self.colour_mlp(torch.cat([features, spherical_harmonics_degree2(unit)], dim=-1))
         return torch.sigmoid(features[:, :3] + residual)
@@ -117,6 +124,15 @@ class GridField(nn.Module):
         with torch.no_grad():
             grid = F.interpolate(self.density_grid.data, size=shape, mode="trilinear", align_corners=True)
         self.density_grid = nn.Parameter(grid.contiguous())
+
+    def upsample_features(self, resolution: int) -> None:
+        """Replace the colour-feature grid by its trilinear resampling at `resolution`."""
+        shape = grid_shape(self.bounds.cpu().numpy(), resolution)
+        if tuple(shape) == tuple(self.feature_grid.shape[2:]):
+            return
+        with torch.no_grad():
+            grid = F.interpolate(self.feature_grid.data, size=shape, mode="trilinear", align_corners=True)
+        self.feature_grid = nn.Parameter(grid.contiguous())
 
     def total_variation(self):
         """Mean squared difference of neighbouring raw density values."""

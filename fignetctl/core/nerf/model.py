@@ -73,17 +73,19 @@ class NerfModel(nn.Module):
             sigma = self.field.density(tensor.reshape(-1, 3))
         return sigma.detach().cpu().numpy() if as_numpy else sigma
 
-    def render_rays(self, origins, directions, warp=None, jitter=None, chunk=None, skip_empty=True, weight_threshold=None):
+    def render_rays(self, origins, directions, warp=None, jitter=None, chunk=None, skip_empty=True, weight_threshold=None,
+                    transmittance_threshold=0.0):
         """Volume-render rays (R, 3) + (R, 3) (torch, any direction length).
 
         warp(points (P,3)) -> points (P,3) (or (points, directions)) is applied to every sample
         point before the field is queried (ray bending). Returns a dict of tensors:
         rgb (R, 3), depth (R,) the expected ray parameter t of the surface (z-depth for
         camera rays from `render`), distance (R,) = depth · |d|, opacity (R,). Samples whose
-        compositing weight is below `weight_threshold` (default: the config's) get no colour.
+        compositing weight is below `weight_threshold` (default: the config's) get no colour;
+        with `transmittance_threshold` > 0, samples behind which less light is left are dropped.
         """
         if chunk is not None and len(origins) > chunk:
-            parts = [self.render_rays(o, d, warp, None if jitter is None else j, None, skip_empty, weight_threshold)
+            parts = [self.render_rays(o, d, warp, None if jitter is None else j, None, skip_empty, weight_threshold, transmittance_threshold)
                      for o, d, j in zip(origins.split(chunk), directions.split(chunk), (jitter.split(chunk) if jitter is not None else [None] * len(origins.split(chunk))))]
             return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
         low, high = self.field.bounds[0], self.field.bounds[1]
@@ -91,7 +93,7 @@ class NerfModel(nn.Module):
         occupancy = self.occupancy if skip_empty else None
         rgb, depth, opacity, _ = render_samples(
             self.field, occupancy, samples, directions, self.background, warp,
-            self.config.weight_threshold if weight_threshold is None else weight_threshold,
+            self.config.weight_threshold if weight_threshold is None else weight_threshold, transmittance_threshold,
         )
         return {"rgb": rgb, "depth": depth, "distance": depth * directions.norm(dim=-1), "opacity": opacity}
 

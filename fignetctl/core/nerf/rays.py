@@ -72,8 +72,9 @@ def look_at_point(c2w) -> np.ndarray:
 def scene_bounds(points, c2w, margin: float = 0.1):
     """Axis-aligned scene box (2, 3): from the sparse points, else from the cameras.
 
-    With 20 or more points: their 1st-99th percentile box, limited to the cameras' range along
-    axes where the cameras surround the points, grown on each side by `margin` times its longest
+    With 20 or more points: their 1st-99th percentile box, limited along axes where the cameras
+    surround the points to the cameras' range grown by their median distance to the point they
+    look at, grown on each side by `margin` times its longest
     side, each side at least 5 % of the longest. With fewer: a cube around the point the cameras
     look at, half the median camera distance to it in half-size.
     points : (M, 3); c2w : (N, 4, 4)
@@ -87,9 +88,12 @@ def scene_bounds(points, c2w, margin: float = 0.1):
         # would otherwise stretch the box and coarsen the grid.
         centres = c2w[:, :3, 3]
         median = np.median(points, axis=0)
-        surrounded = (centres.min(0) < median) & (median < centres.max(0))
-        low = np.where(surrounded, np.maximum(low, centres.min(0)), low)
-        high = np.where(surrounded, np.minimum(high, centres.max(0)), high)
+        # ... the cameras' range grown by their median distance to what they look at, so that
+        # walls enclosing an orbit stay inside (they fill the top of every view).
+        reach = np.median(np.linalg.norm(centres - look_at_point(c2w), axis=1))
+        surrounded = (centres.min(0) - reach < median) & (median < centres.max(0) + reach)
+        low = np.where(surrounded, np.maximum(low, centres.min(0) - reach), low)
+        high = np.where(surrounded, np.minimum(high, centres.max(0) + reach), high)
         size = np.maximum(high - low, 0.05 * (high - low).max())
         centre = 0.5 * (low + high)
         half = 0.5 * size + margin * size.max()

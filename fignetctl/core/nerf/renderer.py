@@ -68,11 +68,15 @@ def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
     return rgb, depth, opacity, weights
 
 
-def render_samples(field, occupancy, samples: RaySamples, directions, background, warp=None, weight_threshold=0.0):
+def render_samples(field, occupancy, samples: RaySamples, directions, background, warp=None, weight_threshold=0.0,
+                   transmittance_threshold=0.0):
     """Query the field at the samples (through `warp` when given) and composite.
 
     warp(points (P,3)) -> points (P,3), or -> (points, directions) to also turn the view
     directions; applied to every sample point before the occupancy and field queries.
+    transmittance_threshold > 0 (training): a gradient-free density pass first drops the
+    samples behind which less than this much light is left (early ray termination), so the
+    differentiable pass and its backward only see the samples that matter.
     """
     R, S = samples.valid.shape
     candidate = samples.valid
@@ -88,6 +92,13 @@ def render_samples(field, occupancy, samples: RaySamples, directions, background
     keep = occupancy.lookup(query) if occupancy is not None else torch.ones(len(query), dtype=torch.bool, device=query.device)
     rows, cols = flat_index[0][keep], flat_index[1][keep]
     query, query_directions = query[keep], query_directions[keep]
+    if transmittance_threshold > 0 and len(query):
+        with torch.no_grad():
+            optical = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
+            optical[rows, cols] = field.density(query) * samples.step[rows]
+            before = torch.cumsum(optical, dim=-1) - optical
+            alive = (before < -torch.log(torch.tensor(transmittance_threshold)))[rows, cols]
+        rows, cols, query, query_directions = rows[alive], cols[alive], query[alive], query_directions[alive]
     sigma = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
     if len(query):
         sigma = sigma.index_put((rows, cols), field.density(query))

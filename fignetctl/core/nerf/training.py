@@ -28,8 +28,9 @@ from fignetctl.errors import FignetError
 def make_optimizer(model: NerfModel, config: NerfConfig):
     groups = [
         {"params": [model.field.density_grid, model.field.feature_grid], "lr": config.learning_rate_grid, "base_lr": config.learning_rate_grid},
-        {"params": list(model.field.colour_mlp.parameters()), "lr": config.learning_rate_mlp, "base_lr": config.learning_rate_mlp},
     ]
+    if model.field.colour_mlp is not None:
+        groups.append({"params": list(model.field.colour_mlp.parameters()), "lr": config.learning_rate_mlp, "base_lr": config.learning_rate_mlp})
     if config.background == "learned":
         groups.append({"params": [model.background_logit], "lr": config.learning_rate_grid, "base_lr": config.learning_rate_grid})
     return torch.optim.Adam(groups, betas=(0.9, 0.99))
@@ -53,6 +54,7 @@ class NerfTrainer:
         config = self.config
         if self.step in config.upsample_steps:
             self.model.field.upsample_density(config.grid_resolution_at(self.step))
+            self.model.field.upsample_features(config.feature_resolution_at(self.step))
             self.model.refresh_occupancy()
             self.optimizer = make_optimizer(self.model, config)
         elif self.step >= config.occupancy_warmup and self.step % config.occupancy_every == 0:
@@ -65,8 +67,9 @@ class NerfTrainer:
         self._before_step()
         index = torch.randint(len(self.origins), (self.config.rays_per_batch,), generator=self.generator).to(self.device)
         jitter = torch.rand(self.config.rays_per_batch, generator=self.generator).to(self.device)
-        threshold = 0.0 if self.step < self.config.occupancy_warmup else None
-        out = self.model.render_rays(self.origins[index], self.directions[index], jitter=jitter, weight_threshold=threshold)
+        warm = self.step >= self.config.occupancy_warmup
+        out = self.model.render_rays(self.origins[index], self.directions[index], jitter=jitter, weight_threshold=None if warm else 0.0,
+                                     transmittance_threshold=self.config.transmittance_threshold if warm else 0.0)
         mse = torch.mean((out["rgb"] - self.colours[index]) ** 2)
         loss = mse + self.config.tv_weight * self.model.field.total_variation() if self.config.tv_weight > 0 else mse
         if not torch.isfinite(loss):

@@ -1,5 +1,5 @@
 # fignetctl: set up, run the main job, test, benchmark.
-#   make demo    set up a fresh machine (.venv) and run the main job on the bundled default
+#   make demo    set up a fresh machine (.venv) and run the main job (the pipeline) on the bundled capture
 #   make test    set up and run the whole test suite
 #   make bench   print (and write json of) the benchmarks
 
@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 OUT    ?= out
 JOBS   ?= 2
 
-.PHONY: setup demo test bench checkpoints evaluate-checkpoints clean
+.PHONY: setup demo dataset-demo test bench checkpoints evaluate-checkpoints clean
 
 # torch is pinned and installed first: an open range would pull a CUDA build of several GB.
 $(BIN)/fignetctl: pyproject.toml
@@ -21,13 +21,17 @@ $(BIN)/fignetctl: pyproject.toml
 
 setup: $(BIN)/fignetctl
 
-# The main job (until the perception pipeline lands): a small MOVi-B-style dataset from
-# PyBullet, a summary, a rerun recording and an mp4 preview of its first trajectory.
+# The main job: the whole pipeline on the bundled capture (pipeline.mk has a target per stage;
+# `make -j2 -f pipeline.mk scenes SEEDS="0 1"` runs several scenes). Each stage prints its time.
 demo: setup
+	$(MAKE) --no-print-directory -f pipeline.mk SCENE=$(OUT)/scene FIGNETCTL=$(BIN)/fignetctl PYTHON=$(BIN)/python
+
+# A small MOVi-B-style dataset from PyBullet, its summary, a rerun recording and an mp4 preview.
+dataset-demo: setup
 	mkdir -p $(OUT)
 	$(BIN)/fignetctl make-dataset --preset movi-b -n 8 --seed 1 --jobs $(JOBS) --overwrite -o $(OUT)/movi-b.h5
 	$(BIN)/fignetctl show $(OUT)/movi-b.h5 --video $(OUT)/movi-b.mp4 --rerun $(OUT)/movi-b.rrd --overwrite
-	@echo "main job done: $(OUT)/movi-b.h5 $(OUT)/movi-b.mp4 $(OUT)/movi-b.rrd" >&2
+	@echo "done: $(OUT)/movi-b.h5 $(OUT)/movi-b.mp4 $(OUT)/movi-b.rrd" >&2
 
 test: setup
 	$(BIN)/python -m pytest -q

@@ -12,7 +12,7 @@ from fignetctl.commands import options
 @click.option("--size", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True, help="Network size preset (paper: latent 128, 10 message-passing steps).")
 @click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.2]")
 @click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
-@click.option("--max-static-edge", type=click.FloatRange(min=0, min_open=True), default=0.5, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m).")
+@click.option("--max-static-edge", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m).")
 @click.option("--loss", type=click.Choice(["mse", "huber"]), default="mse", show_default=True, help="Loss on the normalised accelerations; huber weighs rare contact spikes less.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")

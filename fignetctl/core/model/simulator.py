@@ -50,7 +50,7 @@ class SimulatorConfig:
     """Collision radius and FIGNet (surface edges) or FIGNet* (none)."""
     max_faces_per_object: int | None = 256
     """Meshes are decimated (quadric error) to at most this many faces; None keeps them."""
-    max_static_edge: float | None = 0.5
+    max_static_edge: float | None = 1.0
     """Static meshes are subdivided until no edge is longer than this (m); None keeps them.
     The face–face features hold each face's vertices relative to its closest point, so one
     80 m floor triangle beside 0.1 m object triangles would set the normaliser's scale to

@@ -222,7 +222,7 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
     return trainer
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=0.5) -> SimulatorConfig:
+def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=1.0) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig

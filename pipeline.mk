@@ -1,0 +1,77 @@
+# The whole pipeline of one scene, one target per stage, so `make -j` runs many scenes side by
+# side and re-running a stage reuses what is done.
+#
+#   make -f pipeline.mk SCENE=out/scene                 the bundled capture (seed 0) end to end
+#   make -f pipeline.mk SCENE=out/s1 SEED=1 DEVICE=cuda another bundled capture, on a GPU
+#   make -j2 -f pipeline.mk scenes SEEDS="0 1 2"       several scenes: out/scene-0, -1, -2
+#
+# Each stage prints how long it took ("stage <name>: <seconds> s") on stderr. The folder holds:
+#   capture/            render-views: images, video, prompts, measurements, ground truth
+#   cameras.npz         capture-poses (COLMAP; metres from the measured camera height)
+#   nerf.pt             fit-nerf
+#   object/             extract-mesh: object.obj, environment.obj, volume.npz, masks/
+#   scene.h5            build-graph: the object dropped from DROP metres above its place
+#   rollout.h5          rollout with the bundled FIGNet*
+#   video.mp4 (+ video_frames/)  rerender from camera VIEW, the object's path traced
+#   pipeline.rrd        rerun recording of the rollout
+
+FIGNETCTL ?= .venv/bin/fignetctl
+PYTHON    ?= .venv/bin/python
+SCENE     ?= out/scene
+SEED      ?= 0
+DEVICE    ?= auto
+PRESET    ?= fast
+NERF_FLAGS ?=
+FACES     ?= 1000
+DROP      ?= 0.15
+STEPS     ?= 60
+VIEW      ?= 5
+OBJECT    ?=
+
+SHELL := /bin/bash
+# `time` of bash, one line per stage.
+STAGE = TIMEFORMAT="stage $(1): %R s"; time
+
+.PHONY: all scenes
+.DELETE_ON_ERROR:
+
+all: $(SCENE)/video.mp4
+
+# Every stage writes atomically, so a target that exists is complete.
+$(SCENE)/capture/measurements.json:
+	@mkdir -p $(SCENE)
+	@$(call STAGE,render-views) $(FIGNETCTL) render-views -o $(SCENE)/capture --seed $(SEED) --overwrite >/dev/null
+
+$(SCENE)/cameras.npz: $(SCENE)/capture/measurements.json
+	@$(call STAGE,capture-poses) $(FIGNETCTL) capture-poses --images $(SCENE)/capture/images \
+	  --camera-height $$($(PYTHON) -c "import json,sys; print(json.load(open(sys.argv[1]))['camera_height_m'])" $<) \
+	  --seed $(SEED) -o $@ --overwrite >/dev/null
+
+$(SCENE)/nerf.pt: $(SCENE)/cameras.npz
+	@$(call STAGE,fit-nerf) $(FIGNETCTL) fit-nerf $(SCENE)/capture/images $< --preset $(PRESET) $(NERF_FLAGS) \
+	  --device $(DEVICE) --seed $(SEED) -o $@ --overwrite >/dev/null
+
+$(SCENE)/object/volume.npz: $(SCENE)/nerf.pt
+	@$(call STAGE,extract-mesh) $(FIGNETCTL) extract-mesh $< --cameras $(SCENE)/cameras.npz \
+	  --images $(SCENE)/capture/images --prompts $(SCENE)/capture/prompts.json $(if $(OBJECT),--object $(OBJECT)) \
+	  --faces $(FACES) --device $(DEVICE) -o $(SCENE)/object --overwrite >/dev/null
+
+$(SCENE)/scene.h5: $(SCENE)/object/volume.npz
+	@$(call STAGE,build-graph) $(FIGNETCTL) build-graph $< --drop-height $(DROP) -o $@ --overwrite
+
+$(SCENE)/rollout.h5: $(SCENE)/scene.h5
+	@$(call STAGE,rollout) $(FIGNETCTL) rollout $< --steps $(STEPS) --device $(DEVICE) \
+	  --rerun $(SCENE)/pipeline.rrd -o $@ --overwrite
+
+$(SCENE)/video.mp4: $(SCENE)/rollout.h5
+	@$(call STAGE,rerender) $(FIGNETCTL) rerender $(SCENE)/nerf.pt $(SCENE)/object/volume.npz $< \
+	  --cameras $(SCENE)/cameras.npz --camera $(VIEW) --trace --device $(DEVICE) -o $@ --overwrite >/dev/null
+	@echo "$(SCENE): video $@, intermediate files and $(SCENE)/pipeline.rrd" >&2
+
+# Many scenes, one bundled capture per seed: make -j2 -f pipeline.mk scenes SEEDS="0 1 2"
+# gives out/scene-0, out/scene-1, out/scene-2, each a whole pipeline.
+SEEDS ?= 0
+OUT   ?= out
+scenes: $(foreach seed,$(SEEDS),$(OUT)/scene-$(seed)/video.mp4)
+$(OUT)/scene-%/video.mp4:
+	@$(MAKE) --no-print-directory -f pipeline.mk SCENE=$(OUT)/scene-$* SEED=$*

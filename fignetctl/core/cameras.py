@@ -17,12 +17,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.npz_document import read_npz_document
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.cameras"
@@ -69,6 +69,19 @@ class Cameras:
         if name in stems:
             return stems.index(name)
         raise FormatError(f"no camera for image {name!r} (the cameras have {len(names)} images)")
+
+
+def look_at_c2w(eye, target) -> np.ndarray:
+    """(4, 4) OpenCV camera-to-world at `eye` looking at `target`, with world z up (image y
+    down); a camera looking straight down gets world x as its right."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right = right / np.linalg.norm(right) if np.linalg.norm(right) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+    c2w[:3, 3] = eye
+    return c2w
 
 
 def validate(cameras: Cameras, where: str = "cameras") -> Cameras:
@@ -138,25 +151,7 @@ def write_cameras(path, cameras: Cameras) -> None:
 def read_cameras(path) -> Cameras:
     """Read and check `cameras.npz`; any problem is a FormatError naming the file and field."""
     path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as error:
-        raise FormatError(f"{path}: not a readable cameras.npz ({type(error).__name__}: {error})") from None
-    fmt = str(arrays.get("format", ""))
-    if fmt != FORMAT:
-        raise FormatError(f"{path}: 'format' is {fmt!r}, expected {FORMAT!r}")
-    version = arrays.get("format_version")
-    if version is None or version.shape != () or version.dtype.kind not in "iu" or int(version) != FORMAT_VERSION:
-        raise FormatError(
-            f"{path}: format_version {None if version is None else version.tolist()!r} is not supported "
-            f"(this fignetctl reads {FORMAT_VERSION})"
-        )
-    for field in ("image_names", "K", "c2w", "width", "height"):
-        if field not in arrays:
-            raise FormatError(f"{path}: missing field {field!r}")
+    arrays = read_npz_document(path, "cameras.npz", FORMAT, FORMAT_VERSION, ("image_names", "K", "c2w", "width", "height"))
     try:
         cameras = Cameras(
             image_names=arrays["image_names"],

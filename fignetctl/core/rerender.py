@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fignetctl.core.cameras import look_at_c2w
 from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.core.volume import Volume
 from fignetctl.errors import FignetError
@@ -291,18 +292,6 @@ def _camera_key(camera):
 
 
 # ----------------------------------------------------------------------------- cameras
-
-
-def look_at_c2w(eye, target) -> np.ndarray:
-    """(4, 4) OpenCV camera-to-world at `eye` looking at `target`, z up."""
-    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right = right / np.linalg.norm(right) if np.linalg.norm(right) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
 
 
 def orbit_cameras(centre, radius: float, elevation_deg: float, count: int, K, width: int, height: int, azimuth_deg: float = 0.0) -> list:

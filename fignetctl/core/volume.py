@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.npz_document import read_npz_document
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.volume"
@@ -101,22 +101,7 @@ def write_volume(path, volume: Volume) -> Path:
 def read_volume(path) -> Volume:
     """Read and check volume.npz; any problem is a one-line FormatError."""
     path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as error:
-        raise FormatError(f"{path}: not a readable volume.npz ({type(error).__name__})") from None
-    fmt = str(arrays.get("format", ""))
-    if fmt != FORMAT:
-        raise FormatError(f"{path}: 'format' is {fmt!r}, expected {FORMAT!r}")
-    version = arrays.get("format_version")
-    if version is None or version.shape != () or version.dtype.kind not in "iu" or int(version) != FORMAT_VERSION:
-        raise FormatError(f"{path}: format_version {None if version is None else version.tolist()!r} is not supported (this fignetctl reads {FORMAT_VERSION})")
-    for field in (*_VECTORS, "object_mesh", "environment_mesh"):
-        if field not in arrays:
-            raise FormatError(f"{path}: missing field {field!r}")
+    arrays = read_npz_document(path, "volume.npz", FORMAT, FORMAT_VERSION, (*_VECTORS, "object_mesh", "environment_mesh"))
     for field in ("object_mesh", "environment_mesh", *(("settings",) if "settings" in arrays else ())):
         if arrays[field].shape != () or arrays[field].dtype.kind != "U":
             raise FormatError(f"{path}: field {field!r} must be one string, got {arrays[field].shape} {arrays[field].dtype}")

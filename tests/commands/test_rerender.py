@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from fignetctl.core.cameras import look_at_c2w
 from fignetctl.cli import cli
 from fignetctl.core import rerender
 from fignetctl.core.cameras import Cameras, write_cameras
@@ -37,7 +38,7 @@ def inputs(tmp_path_factory):
     write_volume(folder / "volume.npz", lower=BOX_LOWER - 0.05, upper=BOX_UPPER + 0.05, origin=REST)
     write_trajectories(folder / "rollout.h5", box_rollout())
     K, c2w, width, height = top_camera(size=32, focal=40.0)
-    side = rerender.look_at_c2w([2.5, 0.5, 1.5], [0, 0, -0.4])
+    side = look_at_c2w([2.5, 0.5, 1.5], [0, 0, -0.4])
     write_cameras(folder / "cameras.npz", Cameras(np.array(["top.png", "side.png"]), np.stack([K, K]), np.stack([c2w, side]), width, height))
     return {name: str(folder / f"{name}.{ext}") for name, ext in (("nerf", "pt"), ("volume", "npz"), ("rollout", "h5"), ("cameras", "npz"))}
 

@@ -9,21 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.cameras import Cameras
-
-
-def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """(4, 4) OpenCV camera-to-world (x right, y down, z forward) at `eye` looking at `target`."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    forward = target - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, down, forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
+from fignetctl.core.cameras import Cameras, look_at_c2w
 
 
 def ring_cameras(count, radius=0.8, height=0.5, jitter=0.0, arc_deg=360.0, seed=0) -> np.ndarray:
@@ -34,7 +20,7 @@ def ring_cameras(count, radius=0.8, height=0.5, jitter=0.0, arc_deg=360.0, seed=
     for angle in angles:
         eye = np.array([radius * np.cos(angle), radius * np.sin(angle), height]) + rng.normal(0, jitter, 3)
         target = np.array([0.0, 0.0, 0.05]) + rng.normal(0, jitter, 3)
-        c2w.append(look_at(eye, target))
+        c2w.append(look_at_c2w(eye, target))
     return np.array(c2w)
 
 

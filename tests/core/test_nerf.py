@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.cameras import Cameras, look_at_c2w, write_cameras
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
@@ -39,22 +39,9 @@ class ConstantBox:
         return self.rgb.expand(len(points), 3)
 
 
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)):
-    """OpenCV camera-to-world (x right, y down, z forward) at `eye` looking at `target`."""
-    eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, down, forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
-
-
 def orbit(n=8, radius=3.0, width=32, height=24, focal=30.0):
     K = np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1.0]])
-    c2w = [look_at((radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a))) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
+    c2w = [look_at_c2w((radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a)), (0.0, 0.0, 0.0)) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
     return np.repeat(K[None], n, 0), np.array(c2w)
 
 
@@ -129,7 +116,7 @@ def test_grid_box_renders_z_depth_of_its_face_for_a_camera():
     model = solid_box_model()
     width, height = 33, 25
     K = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
-    c2w = look_at((0.0, -3.0, 0.0), up=(0, 0, 1))
+    c2w = look_at_c2w((0.0, -3.0, 0.0), (0.0, 0.0, 0.0))
     rendering = model.render((K, c2w, width, height))
     voxel = 2.0 / 23
     # Centre pixel: the face y = -0.5 is at z-depth 2.5; off-centre pixels see the same plane.

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from fignetctl.core.cameras import look_at_c2w
 from fignetctl.core import rerender
 from fignetctl.core.nerf import NerfConfig, NerfModel
 from fignetctl.core.transforms import quat_from_axis_angle
@@ -42,7 +43,7 @@ def solid_field(resolution=41):
 def top_camera(size=48, focal=60.0):
     """(K, c2w, width, height) above the scene looking straight down (image x = world x, image v = -y)."""
     K = np.array([[focal, 0, (size - 1) / 2], [0, focal, (size - 1) / 2], [0, 0, 1.0]])
-    return K, rerender.look_at_c2w([0, 0, CAMERA_HEIGHT], [0, 0, 0]), size, size
+    return K, look_at_c2w([0, 0, CAMERA_HEIGHT], [0, 0, 0]), size, size
 
 
 def motion_of(positions, quaternions=None, origin=None):

@@ -1,0 +1,40 @@
+"""Reading the project's .npz documents (cameras.npz, volume.npz): the container and its
+`format` / `format_version` checked once, for every such reader."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from fignetctl.errors import FormatError
+
+
+def read_npz_document(path, name: str, fmt: str, version: int, required=()) -> dict:
+    """The arrays of an .npz whose `format` is `fmt` and `format_version` is `version`, with
+    every field of `required` present; any problem is a one-line FormatError naming `path`.
+
+    name : what the file is, for the messages (e.g. 'cameras.npz')
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as error:
+        raise FormatError(f"{path}: not a readable {name} ({type(error).__name__}: {error})") from None
+    found = str(arrays.get("format", ""))
+    if found != fmt:
+        raise FormatError(f"{path}: 'format' is {found!r}, expected {fmt!r}")
+    stored = arrays.get("format_version")
+    if stored is None or stored.shape != () or stored.dtype.kind not in "iu" or int(stored) != version:
+        raise FormatError(
+            f"{path}: format_version {None if stored is None else stored.tolist()!r} is not supported "
+            f"(this fignetctl reads {version})"
+        )
+    for field in required:
+        if field not in arrays:
+            raise FormatError(f"{path}: missing field {field!r}")
+    return arrays

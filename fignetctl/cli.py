@@ -29,6 +29,7 @@ COMMANDS = {
     "extract-mesh": "extract_mesh:extract_mesh",
     "build-graph": "build_graph:build_graph",
     "rerender": "rerender:rerender",
+    "tradeoff": "tradeoff:tradeoff",
 }
 
 log = logging.getLogger("fignetctl")
@@ -76,6 +77,7 @@ _SUMMARIES = {
     "extract-mesh": "Object and environment meshes from a NeRF and point prompts: object.obj, volume.npz.",
     "build-graph": "A 2-frame scene (a drop) from extracted meshes, for rollout.",
     "rerender": "A rollout re-rendered through the NeRF by ray bending: PNG frames and an mp4.",
+    "tradeoff": "Accuracy against seconds for each knob (decimation, radius, ...), Pareto front marked.",
 }
 
 

@@ -106,7 +106,7 @@ PRESETS = {
         occupancy_warmup=20,
         transmittance_threshold=1e-3,
         bounds_margin=0.05,
-        steps=400,
+        steps=1000,
     ),
     "quality": NerfConfig(
         max_image_side=400,

@@ -21,6 +21,7 @@ import torch
 
 from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.documents import read_torch_document
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -56,21 +57,7 @@ def save_checkpoint(path, simulator, training_state=None, extra=None) -> Path:
 
 def read_checkpoint_payload(path) -> dict:
     """The raw, checked dictionary of a model file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such model file")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many types for corrupt or foreign files
-        raise FormatError(f"{path}: not a readable fignetctl model file ({type(error).__name__})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise FormatError(f"{path}: not a fignetctl model file (no format={FORMAT!r})")
-    if payload.get("format_version") != FORMAT_VERSION:
-        raise FormatError(
-            f"{path}: model format_version {payload.get('format_version')!r} is not supported "
-            f"(this fignetctl reads {FORMAT_VERSION}); upgrade fignetctl"
-        )
-    return payload
+    return read_torch_document(path, "model", "fignetctl model file", FORMAT, FORMAT_VERSION)
 
 
 def load_checkpoint(path, with_training_state=False, device="cpu"):

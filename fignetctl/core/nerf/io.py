@@ -19,6 +19,7 @@ import torch
 
 from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.documents import read_torch_document
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.errors import FormatError
 
@@ -49,20 +50,7 @@ def save_nerf(path, model, metrics=None, inputs=None, training_state=None) -> Pa
 
 def read_nerf_payload(path) -> dict:
     """The checked dictionary of a nerf.pt."""
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such nerf file")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many types for corrupt or foreign files
-        raise FormatError(f"{path}: not a readable nerf.pt ({type(error).__name__})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise FormatError(f"{path}: not a fignetctl nerf file (no format={FORMAT!r})")
-    if payload.get("format_version") != FORMAT_VERSION:
-        raise FormatError(
-            f"{path}: nerf format_version {payload.get('format_version')!r} is not supported (this fignetctl reads {FORMAT_VERSION})"
-        )
-    return payload
+    return read_torch_document(path, "nerf", "nerf.pt", FORMAT, FORMAT_VERSION)
 
 
 def load_nerf(path, device="cpu", with_training_state=False):

@@ -1,5 +1,5 @@
-"""Reading the project's .npz documents (cameras.npz, volume.npz): the container and its
-`format` / `format_version` checked once, for every such reader."""
+"""Reading the project's documents: .npz (cameras.npz, volume.npz) and torch files (model.pt,
+nerf.pt), the container and its `format` / `format_version` checked once for every reader."""
 
 from __future__ import annotations
 
@@ -38,3 +38,28 @@ def read_npz_document(path, name: str, fmt: str, version: int, required=()) -> d
         if field not in arrays:
             raise FormatError(f"{path}: missing field {field!r}")
     return arrays
+
+
+def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: int) -> dict:
+    """The dictionary of a torch file (loaded with weights_only) whose `format` is `fmt` and
+    `format_version` is `version`; any problem is a one-line FormatError naming `path`.
+
+    kind : 'model', 'nerf', ... for the messages; readable_as : what the file should read as
+    """
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(f"{path}: no such {kind} file")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for corrupt or foreign files
+        raise FormatError(f"{path}: not a readable {readable_as} ({type(error).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != fmt:
+        raise FormatError(f"{path}: not a fignetctl {kind} file (no format={fmt!r})")
+    if payload.get("format_version") != version:
+        raise FormatError(
+            f"{path}: {kind} format_version {payload.get('format_version')!r} is not supported "
+            f"(this fignetctl reads {version}); upgrade fignetctl"
+        )
+    return payload

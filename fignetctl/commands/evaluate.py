@@ -10,9 +10,10 @@ from fignetctl.commands import options
 @click.option("--model", "model_path", default=None, help="Model file, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
 @click.option("-n", "--max-trajectories", type=click.IntRange(min=1), default=None, help="Evaluate only the first N trajectories.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the metrics json here (otherwise to stdout).")
+@options.sleep_option
 @options.device_option
 @options.overwrite_option
-def evaluate(data, model_path, max_trajectories, output, device, overwrite):
+def evaluate(data, model_path, max_trajectories, output, sleep, device, overwrite):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (deg) of the dynamic objects after 50 steps and at
@@ -31,7 +32,7 @@ def evaluate(data, model_path, max_trajectories, output, device, overwrite):
     path = options.output_path(output, overwrite) if output else None
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(unit="trajectory", desc="evaluate") as bar:
-        metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1))
+        metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1), sleep=sleep)
     metrics["model"] = str(model_path or "fignet-star-movi-b")
     text = json.dumps(metrics, indent=2)
     if path is None:

@@ -104,12 +104,12 @@ def summarize_errors(records):
     }
 
 
-def method_rollouts(simulator, scene, num_steps, gravity, dt):
-    """name -> (positions, quaternions) for the model and both baselines."""
+def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None):
+    """name -> (positions, quaternions) for the model (sleeping with SleepSettings `sleep`) and both baselines."""
     from fignetctl.core.model.rollout import rollout
 
     return {
-        "model": rollout(simulator, scene, num_steps),
+        "model": rollout(simulator, scene, num_steps, sleep=sleep),
         "constant_velocity": constant_velocity_baseline(scene, num_steps, gravity, dt),
         "stand_still": stand_still_baseline(scene, num_steps),
     }
@@ -131,7 +131,7 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     return records
 
 
-def evaluate_scenes(simulator, data, scenes, on_scene=None):
+def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None):
     """Metrics of the model and the baselines on scenes of one trajectory file.
 
     returns {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}}
@@ -141,7 +141,7 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None):
         horizons = horizon_steps(data.dt, scene.positions.shape[0])
         if not horizons:
             continue
-        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt)
+        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep)
         mesh_names = data.trajectories[scene.name].mesh_names
         for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
             all_records.setdefault(key, []).extend(records)

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
-from fignetctl.core.model.rollout import RolloutError, rollout
+from fignetctl.core.model.rollout import RolloutError, SleepSettings, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
@@ -22,22 +22,48 @@ def load_model(path=None, device="cpu"):
     return load_checkpoint(path, device=device)
 
 
-def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None) -> TrajectoryFile:
-    """Roll out one trajectory of a file; a RolloutError carries `partial_file` too."""
+def sleep_settings(data) -> SleepSettings:
+    """SleepSettings for a file's frame time and gravity."""
+    gravity = float(np.linalg.norm(data.gravity))
+    return SleepSettings(dt=float(data.dt), gravity=gravity if gravity > 0 else 9.81)
+
+
+def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False) -> TrajectoryFile:
+    """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
+
+    sim_scale : simulate the scene scaled by this factor (or "auto": to the training objects'
+        size) and map the frames back; the result's frame time is then dt / √sim_scale
+        (fignetctl.core.model.similarity)
+    sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
+    """
+    from fignetctl.core.model import similarity
+
     data = read_trajectories(scene_path, None if trajectory_id is None else [trajectory_id])
     key = next(iter(data.trajectories))
     if data.trajectories[key].num_frames < 2:
         raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
-    scene = scene_from_trajectory(data, key, simulator.config)
+    scale = similarity.auto_scale(data, key) if sim_scale == "auto" else float(sim_scale)
+    simulated, dt = data, data.dt
+    if scale != 1.0:
+        simulated, history_positions, history_quaternions = similarity.scaled_scene(data, key, scale)
+        dt = data.dt / scale**0.5
+    scene = scene_from_trajectory(simulated, key, simulator.config)
+
+    def result(positions, quaternions):
+        if scale != 1.0:
+            positions = np.concatenate([history_positions, positions[2:] / scale])
+            quaternions = np.concatenate([history_quaternions, quaternions[2:]])
+        return rollout_result(data, key, positions, quaternions, simulator, dt, scale)
+
     try:
-        positions, quaternions = rollout(simulator, scene, num_steps, on_step)
+        positions, quaternions = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(data) if sleep else None)
     except RolloutError as error:
-        error.partial_file = rollout_result(data, key, error.positions, error.quaternions, simulator)
+        error.partial_file = result(error.positions, error.quaternions)
         raise
-    return rollout_result(data, key, positions, quaternions, simulator)
+    return result(positions, quaternions)
 
 
-def rollout_result(data, key, positions, quaternions, simulator) -> TrajectoryFile:
+def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_scale=1.0) -> TrajectoryFile:
     """A trajectory file of the rollout: the scene's meshes and objects, the new frames."""
     trajectory = dataclasses.replace(
         data.trajectories[key],
@@ -47,11 +73,11 @@ def rollout_result(data, key, positions, quaternions, simulator) -> TrajectoryFi
     )
     used = set(trajectory.mesh_names)
     meshes = {name: mesh for name, mesh in data.meshes.items() if name in used}
-    attrs = {"source": "fignetctl rollout", "model_config": simulator.config.to_json()}
-    return TrajectoryFile(data.dt, data.gravity, meshes, {key: trajectory}, attrs)
+    attrs = {"source": "fignetctl rollout", "model_config": simulator.config.to_json(), "sim_scale": float(sim_scale)}
+    return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None) -> dict:
+def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
@@ -59,7 +85,7 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None) ->
     keys = list(data.trajectories)[:max_trajectories]
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
-    results = evaluate_scenes(simulator, data, scenes, on_scene)
+    results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
-    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "metrics": results}
+    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep), "metrics": results}

@@ -1,0 +1,95 @@
+"""Simulating a scene at the size the model was trained on (dynamic similarity).
+
+A learned simulator only knows the sizes and speeds of its training data: the bundled models
+saw make-dataset movi-b objects whose largest side is 1.4–2.8 m (median 2.1 m), while a cup on
+a table is 0.1 m. Under gravity alone (friction and restitution are dimensionless), a scene
+scaled by s in space behaves like the original slowed down by √s in time (Froude similarity:
+x' = s·x, t' = √s·t, v' = √s·v). So a small scene can be simulated at the model's size with
+the model's frame time dt, and the predicted frames mapped back: positions divided by s, the
+frames then √s times closer in time (dt / √s).
+
+The first frame (t−1) is moved so that the motion survives the change of frame time: each
+dynamic object's centre is taken to fly on the parabola under gravity g through its two given
+positions (x_{t−1} at −dt, x_t at 0), and x_{t−1} becomes that parabola at −dt/√s; its
+rotation keeps its angular velocity (the step's angle shrinks by 1/√s). Static objects must
+stand still over the given frames, since their given motion could not be re-timed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from fignetctl.core.transforms import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize
+from fignetctl.errors import FignetError
+
+TRAINING_OBJECT_SIDE = 2.1
+"""Metres: the median largest side of the bundled models' training objects (movi-b, 1.4–2.8 m)."""
+
+
+def largest_dynamic_side(data, key) -> float:
+    """Largest side (m) of the axis-aligned box of any dynamic object's scaled mesh."""
+    trajectory = data.trajectories[key]
+    sides = [
+        float((data.meshes[name].vertices.max(axis=0) - data.meshes[name].vertices.min(axis=0)).max() * scale)
+        for name, scale, static in zip(trajectory.mesh_names, trajectory.scales, trajectory.static)
+        if not static
+    ]
+    if not sides:
+        raise FignetError("the scene has no dynamic object to simulate")
+    return max(sides)
+
+
+def auto_scale(data, key) -> float:
+    """The scale that brings the scene's largest dynamic object to the training objects' size."""
+    return TRAINING_OBJECT_SIDE / largest_dynamic_side(data, key)
+
+
+def retimed_history(trajectory, dt: float, new_dt: float, gravity):
+    """Frames (t−1, t) of `trajectory` with frame t−1 moved from −dt to −new_dt (module docstring).
+
+    returns positions (2, O, 3), quaternions (2, O, 4) float64
+    """
+    positions = np.asarray(trajectory.positions[:2], np.float64).copy()
+    quaternions = quat_normalize(trajectory.quaternions[:2])
+    dynamic = ~np.asarray(trajectory.static, bool)
+    gravity = np.asarray(gravity, np.float64)
+    velocity = (positions[1, dynamic] - positions[0, dynamic]) / dt + 0.5 * gravity * dt  # the parabola's, at frame t
+    positions[0, dynamic] = positions[1, dynamic] - velocity * new_dt + 0.5 * gravity * new_dt**2
+    fraction = new_dt / dt
+    # world-frame rotation of the step: q_t = d ⊗ q_{t−1}; keep q_t, shrink d's angle
+    step = quat_multiply(quaternions[1], quat_conjugate(quaternions[0]))
+    step = np.where(step[:, :1] < 0, -step, step)  # the short way round
+    angle = 2.0 * np.arctan2(np.linalg.norm(step[:, 1:], axis=1), step[:, 0])
+    shrunk = quat_from_axis_angle(step[:, 1:], fraction * angle)
+    quaternions[0] = quat_normalize(quat_multiply(quat_conjugate(shrunk), quaternions[1]))
+    return positions, quaternions
+
+
+def scaled_scene(data, key, scale: float):
+    """A copy of the file holding trajectory `key` at `scale`, history re-timed (module docstring).
+
+    The copy has only frames t−1 and t.
+    """
+    if not (math.isfinite(scale) and scale > 0):
+        raise FignetError(f"the simulation scale must be a positive number, not {scale}")
+    trajectory = data.trajectories[key]
+    static = np.asarray(trajectory.static, bool)
+    moving = ~np.all(np.isclose(trajectory.positions, trajectory.positions[:1], atol=1e-6), axis=(0, 2))
+    moving |= ~np.all(np.isclose(trajectory.quaternions, trajectory.quaternions[:1], atol=1e-6), axis=(0, 2))
+    if np.any(static & moving):
+        raise FignetError(
+            f"trajectory {key!r}: static object {int(np.flatnonzero(static & moving)[0])} moves over the given frames, "
+            "so the scene cannot be simulated at another scale; use --sim-scale 1"
+        )
+    positions, quaternions = retimed_history(trajectory, data.dt, data.dt / math.sqrt(scale), data.gravity)
+    scaled = dataclasses.replace(
+        trajectory,
+        positions=positions * scale,
+        quaternions=quaternions,
+        scales=np.asarray(trajectory.scales, np.float64) * scale,
+        extras={},
+    )
+    return dataclasses.replace(data, trajectories={key: scaled}), positions, quaternions

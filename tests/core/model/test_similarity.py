@@ -1,0 +1,103 @@
+"""Simulating a small scene at the model's size (Froude similarity), against the analytic answer."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fignetctl.core.model import similarity
+from fignetctl.core.model.runs import rollout_file
+from fignetctl.core.model.simulator import SimulatorConfig
+from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_from_axis_angle, quat_multiply
+from fignetctl.core.trajectory import write_trajectories
+from fignetctl.errors import FignetError
+from tests.conftest import box_drop_file
+
+GRAVITY = np.array([0.0, 0.0, -10.0])
+SPIN_AXIS = np.array([1.0, 2.0, 2.0]) / 3.0
+
+
+class BallisticSimulator:
+    """Exact free flight at a fixed frame time, in whatever units it is given: Verlet under
+    GRAVITY and constant angular velocity. Records the largest dynamic side it was shown."""
+
+    def __init__(self, dt):
+        self.config = SimulatorConfig()
+        self.dt = dt
+        self.sides = []
+
+    def step(self, geometry, positions, quaternions):
+        dynamic = ~geometry.static
+        rest = geometry.rest_vertices[np.isin(geometry.vertex_object, np.flatnonzero(dynamic))]
+        self.sides.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
+        new_positions = positions[2].copy()
+        new_quaternions = quaternions[2].copy()
+        new_positions[dynamic] = 2 * positions[1, dynamic] - positions[0, dynamic] + GRAVITY * self.dt**2
+        spin = quat_multiply(quaternions[1, dynamic], quat_conjugate(quaternions[0, dynamic]))
+        new_quaternions[dynamic] = quat_multiply(spin, quaternions[1, dynamic])
+        return new_positions, new_quaternions
+
+
+def small_throw(path, size=0.1, dt=1 / 30, spin=3.0):
+    """A `size` m box thrown sideways and spinning above a static floor, sampled from the exact motion."""
+    data = box_drop_file(frames=2, dt=dt, spin=spin, height=1.0)
+    trajectory = data.trajectories["00000"]
+    positions = trajectory.positions.copy()
+    positions[:, 1, 0] = 0.7 * np.arange(2) * dt
+    trajectory = dataclasses.replace(trajectory, positions=positions, scales=np.array([1.0, size], np.float32))
+    write_trajectories(path, dataclasses.replace(data, trajectories={"00000": trajectory}))
+    return trajectory
+
+
+def exact_pose(trajectory, times, dt, spin=3.0):
+    """Position and quaternion of the box `times` seconds after frame 1 (the file's parabola and spin)."""
+    start = trajectory.positions[1, 1].astype(np.float64)
+    velocity = (trajectory.positions[1, 1] - trajectory.positions[0, 1]) / dt + 0.5 * GRAVITY * dt
+    positions = start + velocity * times[:, None] + 0.5 * GRAVITY * times[:, None] ** 2
+    turn = quat_from_axis_angle(np.broadcast_to(SPIN_AXIS, (len(times), 3)), spin * times)
+    return positions, quat_multiply(turn, trajectory.quaternions[1, 1].astype(np.float64))
+
+
+@pytest.mark.parametrize("scale", [1.0, 4.0, 21.0])
+def test_a_scaled_rollout_is_the_real_motion_at_the_new_frame_time(tmp_path, scale):
+    dt = 1 / 30
+    trajectory = small_throw(tmp_path / "throw.h5", dt=dt)
+    simulator = BallisticSimulator(dt)
+    result = rollout_file(simulator, tmp_path / "throw.h5", None, 12, sim_scale=scale)
+    assert result.dt == pytest.approx(dt / np.sqrt(scale))
+    rolled = result.trajectories["00000"]
+    times = (np.arange(14) - 1) * result.dt
+    positions, quaternions = exact_pose(trajectory, times, dt)
+    np.testing.assert_allclose(rolled.positions[:, 1], positions, atol=2e-6)
+    assert quat_angle_deg(rolled.quaternions[:, 1], quaternions).max() < 1e-3
+    np.testing.assert_array_equal(rolled.positions[:, 0], trajectory.positions[:1, 0].repeat(14, axis=0))
+    assert simulator.sides[0] == pytest.approx(0.1 * scale, rel=1e-6)  # the model saw the scaled box
+
+
+def test_auto_brings_the_largest_moving_object_to_the_training_size(tmp_path):
+    small_throw(tmp_path / "throw.h5", size=0.12)
+    simulator = BallisticSimulator(1 / 30)
+    result = rollout_file(simulator, tmp_path / "throw.h5", None, 3, sim_scale="auto")
+    assert simulator.sides[0] == pytest.approx(similarity.TRAINING_OBJECT_SIDE, rel=1e-6)
+    assert result.attrs["sim_scale"] == pytest.approx(similarity.TRAINING_OBJECT_SIDE / 0.12)
+
+
+def test_a_moving_static_object_cannot_be_rescaled(tmp_path):
+    data = box_drop_file(frames=2)
+    trajectory = data.trajectories["00000"]
+    positions = trajectory.positions.copy()
+    positions[1, 0, 0] += 0.01  # the floor slides
+    data = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions)})
+    with pytest.raises(FignetError, match="static object 0 moves"):
+        similarity.scaled_scene(data, "00000", 4.0)
+
+
+def test_the_rollout_command_takes_auto_and_refuses_nonsense(tmp_path):
+    from click.testing import CliRunner
+
+    from fignetctl.cli import cli
+
+    small_throw(tmp_path / "throw.h5")
+    result = CliRunner().invoke(cli, ["rollout", str(tmp_path / "throw.h5"), "--sim-scale", "-2", "-o", str(tmp_path / "r.h5")])
+    assert result.exit_code != 0 and "is not a positive number or 'auto'" in result.output
+    assert not (tmp_path / "r.h5").exists()

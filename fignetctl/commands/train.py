@@ -18,7 +18,7 @@ from fignetctl.commands import options
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")
 @click.option("--checkpoint-every", type=click.IntRange(min=1), default=500, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue the run saved in --output exactly where it stopped.")
-@click.option("--log-csv", type=click.Path(dir_okay=False), default=None, help="Also write step, loss, seconds to this CSV.")
+@click.option("--log-csv", type=click.Path(dir_okay=False), default=None, help="Also write step, loss, seconds to this CSV (at every checkpoint).")
 @options.seed_option
 @options.device_option
 @options.rerun_option
@@ -48,11 +48,10 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
     resume_from = path if resume and path.exists() else None
     trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from)
     with options.progress(total=steps, initial=trainer.step, unit="step", desc="train", disable=trainer.rank != 0 or None) as bar:
-        trainer.run(path, on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")))
+        trainer.run(path, on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")),
+                    on_checkpoint=lambda: log_csv and trainer.rank == 0 and write_loss_csv(log_csv, trainer.history))
     if trainer.rank != 0:
         return
-    if log_csv:
-        write_loss_csv(log_csv, trainer.history)
     if rerun_path:
         from fignetctl.core.viz import log_scalars_to_rerun
 

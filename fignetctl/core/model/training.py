@@ -138,8 +138,9 @@ class Trainer:
         self.optimizer.step()
         self.step += 1
 
-    def run(self, checkpoint_path=None, on_step=None, until_step=None):
-        """Train until config.steps (or `until_step`), checkpointing every config.checkpoint_every steps."""
+    def run(self, checkpoint_path=None, on_step=None, until_step=None, on_checkpoint=None):
+        """Train until config.steps (or `until_step`), checkpointing every config.checkpoint_every
+        steps (and calling `on_checkpoint()` after each checkpoint)."""
         started = time.perf_counter() - (self.history[-1]["seconds"] if self.history else 0.0)
         last_step = self.config.steps if until_step is None else min(until_step, self.config.steps)
         while self.step < last_step:
@@ -149,6 +150,8 @@ class Trainer:
                 on_step(self.step, loss)
             if checkpoint_path and (self.step % self.config.checkpoint_every == 0 or self.step == last_step):
                 self.save(checkpoint_path)
+                if on_checkpoint is not None:
+                    on_checkpoint()
 
     def state(self) -> dict:
         """Everything a resume needs; the random states of every process, in rank order."""

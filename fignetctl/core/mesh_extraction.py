@@ -51,6 +51,10 @@ class ExtractionSettings:
     """... and this far below the support surface under the object."""
     passive_above: float | None = None
     """... and this far above it (None: V_o's height)."""
+    hull_resolution: int = 64
+    """Grid vertices along the longest side of the masks' box for the visual-hull refinement (0: off)."""
+    hull_dilation: int = 3
+    """Pixels each mask is grown by before the hull test, so a mask a little short of the object's edge cuts nothing off."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -137,6 +141,11 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     """z of the highest surface under the box's footprint, from vertical density profiles on
     the ring just outside the footprint (median over the ring); None if there is none.
 
+    A profile's surface is the highest z where its density is within 10% of the profile's peak,
+    so a support the field holds only faintly (a shiny tray floor, a smear of density below
+    `threshold`) is found as well as a solid one; profiles that peak below a tenth of
+    `threshold` have no surface.
+
     lower, upper : (3,) the box; profiles run from lower z − depth_below up to upper z
     """
     lower, upper = np.asarray(lower, np.float64), np.asarray(upper, np.float64)
@@ -145,8 +154,9 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     ring = _footprint_ring(lower[:2] - 0.05 * size, upper[:2] + 0.05 * size, 24)
     z = np.arange(lower[2] - depth_below, upper[2] + step, step / 2)
     points = np.concatenate([np.repeat(ring, len(z), axis=0), np.tile(z, len(ring))[:, None]], axis=1)
-    solid = (np.asarray(density(points)).reshape(len(ring), len(z)) > threshold)
-    heights = [z[np.nonzero(column)[0].max()] for column in solid if column.any()]
+    values = np.nan_to_num(np.asarray(density(points), np.float64).reshape(len(ring), len(z)))
+    peaks = values.max(axis=1)
+    heights = [z[np.nonzero(column >= 0.9 * peak)[0].max()] for column, peak in zip(values, peaks) if peak > 0.1 * threshold]
     if len(heights) < len(ring) // 3:
         return None
     return float(np.median(heights))
@@ -361,6 +371,58 @@ def object_box_from_views(views, settings: ExtractionSettings):
         points.append(unproject(view.depth, mask, view.K, view.c2w, view.pixel_offset))
         names.append(view.name)
     return object_box_from_points(points, names, settings)
+
+
+def hull_box(density, box, views, settings: ExtractionSettings):
+    """V_o refined by all the masks at once (a visual hull).
+
+    Per-view masks err differently: one takes in a piece of the container's wall, another
+    misses a rim. In the masks' box, the voxels whose density is above the threshold and that
+    project inside every view's mask (grown by `hull_dilation` pixels) hold the object and
+    little else; their largest connected part, padded, is V_o. Occluded space (behind or under
+    the object) passes the test too, which is why the unseen bottom is later cut at the support.
+    Returns `box` unchanged when no voxel passes (or `hull_resolution` is 0).
+    """
+    import cv2
+    from scipy import ndimage
+
+    if settings.hull_resolution <= 0 or len(views) < 2:
+        return box
+    axes, voxel = grid_axes(box[0], box[1], settings.hull_resolution)
+    occupied = sample_density(density, axes) > settings.threshold
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    inside = occupied.reshape(-1).copy()
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * settings.hull_dilation + 1,) * 2)
+    for view in views:
+        mask = cv2.dilate(view.mask.astype(np.uint8), kernel).astype(bool)
+        inside &= _projects_into(points, mask, view)
+    inside = inside.reshape(occupied.shape)
+    labels, count = ndimage.label(inside)
+    if count == 0:
+        log.warning("no voxel of the masks' box projects into every mask; keeping the masks' box")
+        return box
+    largest = 1 + int(np.argmax(ndimage.sum(inside, labels, index=np.arange(1, count + 1))))
+    cells = np.argwhere(labels == largest)
+    lower = np.array([axes[i][cells[:, i].min()] for i in range(3)]) - voxel
+    upper = np.array([axes[i][cells[:, i].max()] for i in range(3)]) + voxel
+    return padded_box(np.stack([lower, upper]), settings.padding)
+
+
+def _projects_into(points, mask, view):
+    """(P,) bool: world points in front of the view's camera whose pixel is set in `mask`."""
+    c2w = np.asarray(view.c2w, np.float64)
+    camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
+    z = camera[:, 2]
+    ahead = z > 1e-9
+    image = camera @ np.asarray(view.K, np.float64).T
+    safe_z = np.where(ahead, z, 1.0)
+    u = np.round(image[:, 0] / safe_z - view.pixel_offset).astype(np.int64)
+    v = np.round(image[:, 1] / safe_z - view.pixel_offset).astype(np.int64)
+    height, width = mask.shape
+    valid = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    result = np.zeros(len(points), bool)
+    result[valid] = mask[v[valid], u[valid]]
+    return result
 
 
 def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None):

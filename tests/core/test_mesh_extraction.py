@@ -1,5 +1,6 @@
 """Mesh extraction on analytic densities, segmentation on a tiny rendered capture, volume.npz."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -145,3 +146,65 @@ def test_prompt_outside_or_on_empty_space_fails():
     depth[3, 3] = 0.0
     with pytest.raises(FignetError, match="empty space"):
         check_prompt(3, 3, 10, 10, depth)
+
+
+def cube_beside_wall(points):
+    """A 0.1 m cube on a floor slab (z in [-0.05, 0]) with a container wall 5 cm to its side."""
+    p = np.asarray(points)
+    cube = np.all(np.abs(p - [0.0, 0.0, 0.05]) <= 0.05, axis=1)
+    wall = (p[:, 0] >= 0.10) & (p[:, 0] <= 0.12) & (np.abs(p[:, 1]) <= 0.3) & (p[:, 2] >= 0) & (p[:, 2] <= 0.15)
+    floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
+    return np.where(cube | wall | floor, 1000.0, 0.0)
+
+
+def projected_mask(points, view, shape=(120, 160)):
+    """The pixels the 3D points fall on, closed into a solid mask."""
+    import cv2
+
+    camera = (points - view.c2w[:3, 3]) @ view.c2w[:3, :3]
+    pixels = camera @ view.K.T
+    u = np.round(pixels[:, 0] / pixels[:, 2]).astype(int)
+    v = np.round(pixels[:, 1] / pixels[:, 2]).astype(int)
+    mask = np.zeros(shape, np.uint8)
+    keep = (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    mask[v[keep], u[keep]] = 1
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool)
+
+
+def test_the_visual_hull_cuts_what_one_mask_took_too_much():
+    from fignetctl.core.cameras import look_at_c2w
+
+    rng = np.random.default_rng(0)
+    cube = rng.uniform(-0.05, 0.05, (20000, 3)) + [0, 0, 0.05]
+    wall_piece = np.stack([rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1)
+    K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
+    views = []
+    for index, azimuth in enumerate(np.radians([200, 290, 20])):
+        eye = [0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45]
+        view = mx.View(f"v{index}", K, look_at_c2w(eye, [0, 0, 0.05]), np.ones((120, 160)))
+        # the first view's mask also takes in the piece of wall beside the cube
+        view.mask = projected_mask(np.concatenate([cube, wall_piece]) if index == 0 else cube, view)
+        views.append(view)
+    settings = mx.ExtractionSettings(padding=0.0)
+    coarse = np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]])
+    box = mx.hull_box(cube_beside_wall, coarse, views, settings)
+    voxel = (coarse[1] - coarse[0]).max() / (settings.hull_resolution - 1)
+    assert box[1][0] < 0.10  # the wall (x >= 0.10) is out; the floor in the cube's shadow may be in
+    assert np.all(box[0] < [-0.05, -0.05, 0.0]) and np.all(box[1] > [0.05, 0.05, 0.1])  # the cube is in
+    extraction_settings = dataclasses.replace(settings, faces=0, smoothing=0)
+    extraction = mx.extract_object(cube_beside_wall, box, extraction_settings)
+    assert extraction.support_z == pytest.approx(0.0, abs=2 * voxel)
+    np.testing.assert_allclose(extraction.object_mesh.extents, [0.1, 0.1, 0.1], atol=3 * voxel)
+    # the masks' box alone takes the wall into the object
+    assert mx.extract_object(cube_beside_wall, coarse, extraction_settings).object_mesh.extents[0] > 0.15
+
+
+def test_a_faint_support_is_found():
+    """A support the field holds only faintly (a peak of a fifth of the threshold) still counts."""
+    def faint_floor(points):
+        z = np.asarray(points)[:, 2]
+        return 10.0 * np.exp(-((z - 0.02) / 0.01) ** 2)
+
+    height = mx.support_height(faint_floor, [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1)
+    assert height == pytest.approx(0.02, abs=0.01)
+    assert mx.support_height(lambda p: np.full(len(p), 1.0), [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1) is None

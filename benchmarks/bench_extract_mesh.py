@@ -1,11 +1,16 @@
 """What mesh accuracy costs in time: extract-mesh on the bundled capture for several --faces.
 
 For each object of the capture's prompts.json: mask IoU of the prompted views against the
-ground-truth masks, then for each n_f the extraction time and the mesh against the GT mesh
+ground-truth masks (single-view GrabCut masks, and the final masks redrawn from the visual hull), then for each n_f the extraction time and the mesh against the GT mesh
 (symmetric Chamfer distance and volume IoU, as fractions of the object's largest side).
 
     python benchmarks/bench_extract_mesh.py --capture capture --nerf nerf.pt
+    python benchmarks/bench_extract_mesh.py --capture capture --nerf nerf.pt --cameras cameras.npz   # fitted on capture-poses' cameras
     python benchmarks/bench_extract_mesh.py --capture capture --carve     # GT depth instead of a NeRF
+
+--cameras: the cameras the NeRF was fitted with, when they are not the ground truth's (the
+capture-poses frame); the GT meshes are then moved into that frame by the similarity that best
+maps the GT camera centres onto those cameras' centres (Umeyama).
 
 --carve builds a stand-in NeRF by space carving the capture's GT depth (every view's depth
 bounds the solid), so the geometry stages can be measured without NeRF error. Writes
@@ -27,24 +32,46 @@ FACES = (100, 300, 1000, 3000, 0)
 
 
 def mesh_errors(mesh, truth, samples=20000, seed=0):
-    """(chamfer, volume IoU): symmetric mean closest-point distance over the truth's largest side."""
+    """(chamfer, volume IoU) as fractions: the symmetric mean closest-point distance over the
+    truth's largest side, and the IoU of both meshes voxelised (pitch 1/64 of that side) and
+    filled. The IoU is None when the truth is not watertight (the lego brick is open
+    underneath, the mug has a cavity): its inside is then not defined."""
     from scipy.spatial import cKDTree
 
     a = mesh.sample(samples, seed=seed) if hasattr(mesh.sample, "__call__") else mesh.sample(samples)
     b = truth.sample(samples, seed=seed)
     chamfer = 0.5 * (cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
+    if not truth.is_watertight:
+        return float(chamfer / truth.extents.max()), None
+    pitch = truth.extents.max() / 64
+    solid_a, solid_b = mesh.voxelized(pitch).fill(), truth.voxelized(pitch).fill()
     low = np.minimum(mesh.bounds[0], truth.bounds[0])
     high = np.maximum(mesh.bounds[1], truth.bounds[1])
     points = np.random.default_rng(seed).uniform(low, high, size=(40000, 3))
-    inside_a, inside_b = mesh.contains(points), truth.contains(points)
+    inside_a, inside_b = solid_a.is_filled(points), solid_b.is_filled(points)
     iou = (inside_a & inside_b).sum() / max((inside_a | inside_b).sum(), 1)
     return float(chamfer / truth.extents.max()), float(iou)
+
+
+def ground_truth_to(cameras, truth_cameras):
+    """(4, 4) similarity from the GT frame to the frame of `cameras` (identity when they are the GT's)."""
+    from fignetctl.core.world_alignment import umeyama
+
+    names = [str(n) for n in cameras.image_names if n in set(truth_cameras.image_names)]
+    source = np.stack([truth_cameras.c2w[truth_cameras.index_of(n)][:3, 3] for n in names])
+    target = np.stack([cameras.c2w[cameras.index_of(n)][:3, 3] for n in names])
+    scale, rotation, translation = umeyama(source, target)
+    matrix = np.eye(4)
+    matrix[:3, :3] = scale * rotation
+    matrix[:3, 3] = translation
+    return matrix
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--capture", type=Path, required=True)
     parser.add_argument("--nerf", type=Path)
+    parser.add_argument("--cameras", type=Path, help="cameras the NeRF was fitted with (default: the GT cameras)")
     parser.add_argument("--carve", action="store_true", help="GT-depth carving instead of a trained NeRF")
     parser.add_argument("--threshold", type=float, default=50.0)
     parser.add_argument("--resolution", type=int, default=96)
@@ -55,12 +82,14 @@ def main():
     import trimesh
 
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.mesh_extraction import ExtractionSettings, View, extract_object, object_box_from_views, view_masks
+    from fignetctl.core.mesh_extraction import ExtractionSettings, View, extract_object, hull_box, hull_masks, object_box_from_views, view_masks
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.segmentation import iou
 
     capture = args.capture
-    cameras = read_cameras(capture / "ground_truth" / "cameras.npz")
+    truth_cameras = read_cameras(capture / "ground_truth" / "cameras.npz")
+    cameras = read_cameras(args.cameras) if args.cameras else truth_cameras
+    to_nerf_frame = ground_truth_to(cameras, truth_cameras)
     truth_masks = np.load(capture / "ground_truth" / "masks.npz")["masks"]
     nerf_path = args.nerf
     if args.carve:
@@ -70,7 +99,7 @@ def main():
         nerf_path = capture / "carved_nerf.pt"
         carved_nerf(nerf_path, depth, cameras, np.array([[-0.35, -0.35, -0.04], [0.35, 0.35, 0.25]]), resolution=192)
     model = load_nerf(nerf_path)
-    results = {"capture": str(capture), "density": "GT-depth carving (192^3 grid)" if args.carve else f"NeRF {nerf_path}",
+    results = {"capture": str(capture), "cameras": str(args.cameras or "ground truth"), "density": "GT-depth carving (192^3 grid)" if args.carve else f"NeRF {nerf_path}",
                "nerf_metrics": {k: v for k, v in model.metrics.items() if k != "held_out"}, "threshold": args.threshold,
                "resolution": args.resolution, "objects": []}
     for obj in json.loads((capture / "prompts.json").read_text())["objects"]:
@@ -83,10 +112,15 @@ def main():
             depth_image = np.where(rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0)
             views.append(View(point["image"], cameras.K[index], cameras.c2w[index], depth_image, rendering.opacity, image, [(point["u"], point["v"])]))
         view_masks(views)
+        first_ious = {v.name: iou(v.mask, truth_masks[cameras.index_of(v.name)] == obj["id"]) for v in views}
+        settings = ExtractionSettings(threshold=args.threshold)
+        coarse = object_box_from_views(views, settings)
+        hull_masks(model.density, hull_box(model.density, coarse, views, settings), views, settings)
+        box = hull_box(model.density, coarse, views, settings)
         mask_seconds = time.perf_counter() - started
         ious = {v.name: iou(v.mask, truth_masks[cameras.index_of(v.name)] == obj["id"]) for v in views}
         truth = trimesh.load(capture / "ground_truth" / "objects" / f"{obj['name']}.obj", force="mesh")
-        box = object_box_from_views(views, ExtractionSettings())
+        truth.apply_transform(to_nerf_frame)
         rows = []
         for faces in FACES:
             settings = ExtractionSettings(resolution=args.resolution, threshold=args.threshold, faces=faces)
@@ -95,11 +129,13 @@ def main():
             seconds = time.perf_counter() - started
             chamfer, volume_iou = mesh_errors(extraction.object_mesh, truth)
             rows.append({"faces": faces, "faces_made": len(extraction.object_mesh.faces), "seconds": round(seconds, 3),
-                         "chamfer_fraction": round(chamfer, 4), "volume_iou": round(volume_iou, 3),
+                         "chamfer_fraction": round(chamfer, 4), "volume_iou": None if volume_iou is None else round(volume_iou, 3),
                          "watertight": bool(extraction.object_mesh.is_watertight)})
             print(obj["name"], rows[-1], flush=True)
         results["objects"].append({"name": obj["name"], "mask_iou": {k: round(v, 3) for k, v in ious.items()},
-                                   "mask_seconds": round(mask_seconds, 2), "size": truth.extents.round(3).tolist(), "faces": rows})
+                                   "mask_iou_single_view": {k: round(v, 3) for k, v in first_ious.items()},
+                                   "mask_seconds": round(mask_seconds, 2), "size": truth.extents.round(3).tolist(),
+                                   "box": np.asarray(box).round(3).tolist(), "faces": rows})
         print(obj["name"], "mask IoU", results["objects"][-1]["mask_iou"], flush=True)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(results, indent=1))
@@ -117,11 +153,12 @@ def plot(results, path):
         rows = obj["faces"]
         x = [r["faces_made"] for r in rows]
         axes[0].plot(x, [100 * r["chamfer_fraction"] for r in rows], "o-", label=obj["name"])
-        axes[1].plot([r["seconds"] for r in rows], [r["volume_iou"] for r in rows], "o-", label=obj["name"])
+        axes[1].plot([r["seconds"] for r in rows], [100 * r["chamfer_fraction"] for r in rows], "o", label=obj["name"])
     axes[0].set(xscale="log", xlabel="faces of the object mesh", ylabel="Chamfer, % of object size")
-    axes[1].set(xlabel="extraction seconds (object + environment)", ylabel="volume IoU with the GT mesh")
+    axes[1].set(xlabel="extraction seconds (object + environment)", ylabel="Chamfer, % of object size")
     axes[0].legend()
-    figure.suptitle(f"extract-mesh on the bundled capture ({results['density']})", fontsize=9)
+    density = results["density"] if results["density"].startswith("GT") else "fitted NeRF, fast preset"
+    figure.suptitle(f"extract-mesh on the bundled capture ({density})", fontsize=9)
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=110)

@@ -55,6 +55,10 @@ class ExtractionSettings:
     """Grid vertices along the longest side of the masks' box for the visual-hull refinement (0: off)."""
     hull_dilation: int = 3
     """Pixels each mask is grown by before the hull test, so a mask a little short of the object's edge cuts nothing off."""
+    hull_mask_margin: float = 0.3
+    """When masks are redrawn: GrabCut may still give the object a ring this wide around its
+    splat, as a fraction of the splat's size (√area); the NeRF often holds an object's lower
+    part only faintly, so its splat falls short there."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -292,9 +296,8 @@ def object_box_from_points(points_per_view, names, settings: ExtractionSettings)
     return box
 
 
-def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
-    """Object and environment meshes for the object in `box` (2, 3), e.g. from
-    `object_box_from_points` or a user's --box."""
+def cut_at_support(density, box, settings: ExtractionSettings):
+    """(lower, upper, support z or None): `box` starting just above the support found under it."""
     lower, upper = np.array(box[0], np.float64), np.array(box[1], np.float64)
     _, voxel = grid_axes(lower, upper, settings.resolution)
     support = support_height(density, lower, upper, settings.threshold, settings.resolution, settings.passive_below + (upper - lower)[2])
@@ -302,12 +305,53 @@ def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
         # The masks see the object from above: its bottom is hidden, so V_o reaches down to the
         # support (and no lower, or the support's surface would join the object).
         lower[2] = support + settings.support_clearance_voxels * voxel
+    return lower, upper, support
+
+
+def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
+    """Object and environment meshes for the object in `box` (2, 3), e.g. from
+    `object_box_from_points` or a user's --box."""
+    lower, upper, support = cut_at_support(density, box, settings)
+    _, voxel = grid_axes(lower, upper, settings.resolution)
     obj = mesh_from_density(density, lower, upper, settings)
     passive_lower, passive_upper = passive_box(lower, upper, support, settings)
     exclude = np.stack([lower - [0, 0, 0.5 * voxel], upper + voxel])
-    environment = mesh_from_density(density, passive_lower, passive_upper, settings, exclude=exclude)
+    try:
+        environment = mesh_from_density(density, passive_lower, passive_upper, settings, exclude=exclude)
+    except FignetError:
+        if support is None:
+            raise
+        environment = None  # only a faint support, which the plane below stands for
+    tolerance = 2 * max(voxel, grid_axes(passive_lower, passive_upper, settings.resolution)[1])
+    environment = with_support_plane(environment, lower, upper, passive_lower, passive_upper, support, tolerance)
     origin = np.asarray(obj.center_mass if obj.is_watertight else obj.bounds.mean(axis=0), np.float64)
     return Extraction(obj, environment, lower, upper, origin, passive_lower, passive_upper, support)
+
+
+def with_support_plane(environment, lower, upper, passive_lower, passive_upper, support, tolerance):
+    """The environment mesh, plus a flat rectangle at the support height over the passive box's
+    footprint when the mesh has no surface there under the object.
+
+    A support the field holds only faintly (a shiny tray floor: density peaks below the
+    marching-cubes threshold) is found by `support_height` but gives no faces, and a dropped
+    object would fall through it. Vertical rays on a ring around V_o's footprint (halfway to the
+    passive box's edge) test whether the mesh has a face within `tolerance` of the support; if
+    under half do, the plane is added.
+    """
+    import trimesh
+
+    if support is None:
+        return environment
+    if environment is not None:
+        ring = _footprint_ring(0.5 * (lower[:2] + passive_lower[:2]), 0.5 * (upper[:2] + passive_upper[:2]), 8)
+        origins = np.column_stack([ring, np.full(len(ring), upper[2] + 1.0)])
+        hits, rays, _ = environment.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)))
+        near = np.abs(hits[:, 2] - support) <= tolerance
+        if len(np.unique(rays[near])) >= 0.5 * len(origins):
+            return environment
+    (x0, y0), (x1, y1) = passive_lower[:2], passive_upper[:2]
+    plane = trimesh.Trimesh([[x0, y0, support], [x1, y0, support], [x1, y1, support], [x0, y1, support]], [[0, 1, 2], [0, 2, 3]], process=False)
+    return plane if environment is None else trimesh.util.concatenate([environment, plane])
 
 
 def passive_box(lower, upper, support, settings: ExtractionSettings):
@@ -379,8 +423,9 @@ def hull_box(density, box, views, settings: ExtractionSettings):
     Per-view masks err differently: one takes in a piece of the container's wall, another
     misses a rim. In the masks' box, the voxels whose density is above the threshold and that
     project inside every view's mask (grown by `hull_dilation` pixels) hold the object and
-    little else; their largest connected part, padded, is V_o. Occluded space (behind or under
-    the object) passes the test too, which is why the unseen bottom is later cut at the support.
+    little else; their largest connected part, padded and clipped to `box`, is V_o. Occluded
+    space (behind or under the object) passes the test too, which is why the unseen bottom is
+    later cut at the support, and why the result is never wider than `box`.
     Returns `box` unchanged when no voxel passes (or `hull_resolution` is 0).
     """
     import cv2
@@ -405,7 +450,68 @@ def hull_box(density, box, views, settings: ExtractionSettings):
     cells = np.argwhere(labels == largest)
     lower = np.array([axes[i][cells[:, i].min()] for i in range(3)]) - voxel
     upper = np.array([axes[i][cells[:, i].max()] for i in range(3)]) + voxel
-    return padded_box(np.stack([lower, upper]), settings.padding)
+    hull = padded_box(np.stack([lower, upper]), settings.padding)
+    return np.stack([np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])])  # the hull only ever shrinks V_o
+
+
+def hull_masks(density, box, views, settings: ExtractionSettings):
+    """Redraw each prompted view's mask from the object in 3D, so every view agrees.
+
+    The occupied voxels of the object's box (`hull_box`, cut at the support) that
+    project inside every mask are splatted into each view; GrabCut then settles the edge from
+    colour, with the splat as probable foreground, its core (where the old mask agreed) as
+    certain foreground and a ring around it as probable background. Views without an image
+    or without prompts (masks the user gave) keep their masks. Returns the views.
+    """
+    import cv2
+
+    from fignetctl.core.segmentation import fill_holes
+
+    lower, upper, _ = cut_at_support(density, box, settings)
+    axes, _ = grid_axes(lower, upper, settings.hull_resolution)
+    occupied = sample_density(density, axes) > settings.threshold
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)[occupied.reshape(-1)]
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * settings.hull_dilation + 1,) * 2)
+    for view in views:
+        points = points[_projects_into(points, cv2.dilate(view.mask.astype(np.uint8), kernel).astype(bool), view)]
+    if len(points) == 0:
+        return views
+    for view in views:
+        if view.image is None or not view.prompts:
+            continue
+        splat = _splat(points, view, view.mask.shape)
+        labels = np.full(splat.shape, cv2.GC_BGD, np.uint8)
+        margin = max(2, int(round(settings.hull_mask_margin * np.sqrt(splat.sum()))))
+        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
+        labels[cv2.dilate(splat.astype(np.uint8), ring).astype(bool)] = cv2.GC_PR_BGD
+        labels[splat] = cv2.GC_PR_FGD
+        labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = cv2.GC_FGD
+        if not (labels == cv2.GC_FGD).any():
+            continue
+        background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+        bgr = np.ascontiguousarray(np.asarray(view.image, np.uint8)[..., ::-1])
+        cv2.grabCut(bgr, labels, None, background, foreground, 5, cv2.GC_INIT_WITH_MASK)
+        view.mask = fill_holes((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD))
+    return views
+
+
+def _splat(points, view, shape):
+    """(H, W) bool: the pixels the points fall on, closed (5 px) and with holes filled."""
+    import cv2
+
+    from fignetctl.core.segmentation import fill_holes
+
+    c2w = np.asarray(view.c2w, np.float64)
+    camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
+    image = camera @ np.asarray(view.K, np.float64).T
+    ahead = camera[:, 2] > 1e-9
+    z = np.where(ahead, camera[:, 2], 1.0)
+    u = np.round(image[:, 0] / z - view.pixel_offset).astype(np.int64)
+    v = np.round(image[:, 1] / z - view.pixel_offset).astype(np.int64)
+    keep = ahead & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    splat = np.zeros(shape, np.uint8)
+    splat[v[keep], u[keep]] = 1
+    return fill_holes(cv2.morphologyEx(splat, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool))
 
 
 def _projects_into(points, mask, view):

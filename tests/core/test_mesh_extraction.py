@@ -208,3 +208,56 @@ def test_a_faint_support_is_found():
     height = mx.support_height(faint_floor, [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1)
     assert height == pytest.approx(0.02, abs=0.01)
     assert mx.support_height(lambda p: np.full(len(p), 1.0), [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1) is None
+
+
+def test_masks_redrawn_from_the_hull_agree_with_the_object():
+    import cv2
+
+    from fignetctl.core.cameras import look_at_c2w
+    from fignetctl.core.segmentation import iou
+
+    rng = np.random.default_rng(1)
+    cube = rng.uniform(-0.05, 0.05, (20000, 3)) + [0, 0, 0.05]
+    wall_piece = np.stack([rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1)
+    K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
+    views, truths = [], []
+    for index, azimuth in enumerate(np.radians([200, 290, 20])):
+        view = mx.View(f"v{index}", K, look_at_c2w([0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45], [0, 0, 0.05]), np.ones((120, 160)))
+        truth = projected_mask(cube, view)
+        image = rng.integers(90, 140, (120, 160, 3)).astype(np.uint8)  # grey clutter
+        image[truth] = [200, 40, 30]  # a red cube
+        view.image, view.prompts, truths = image, [(80, 60)], truths + [truth]
+        if index == 0:  # takes in the wall
+            view.mask = projected_mask(np.concatenate([cube, wall_piece]), view)
+        else:  # misses the rim
+            view.mask = cv2.erode(truth.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2 if index == 1 else 1).astype(bool)
+        views.append(view)
+    before = [iou(v.mask, t) for v, t in zip(views, truths)]
+    settings = mx.ExtractionSettings()
+    box = mx.hull_box(cube_beside_wall, np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]]), views, settings)
+    mx.hull_masks(cube_beside_wall, box, views, settings)
+    after = [iou(v.mask, t) for v, t in zip(views, truths)]
+    assert min(before) < 0.8 and min(after) > 0.9, (before, after)
+
+
+def cube_on(floor_density):
+    def density(points):
+        p = np.asarray(points)
+        cube = np.all(np.abs(p - [0.0, 0.0, 0.05]) <= 0.05, axis=1)
+        floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.03)
+        return np.where(cube, 1000.0, np.where(floor, floor_density, 0.0))
+
+    return density
+
+
+@pytest.mark.parametrize("floor_density, plane", [(20.0, True), (1000.0, False)])
+def test_a_faint_support_becomes_a_plane_in_the_environment(floor_density, plane):
+    settings = mx.ExtractionSettings(resolution=48, faces=0, smoothing=0)
+    extraction = mx.extract_object(cube_on(floor_density), np.array([[-0.07, -0.07, -0.01], [0.07, 0.07, 0.12]]), settings)
+    assert extraction.support_z == pytest.approx(0.0, abs=0.01)
+    environment = extraction.environment_mesh
+    flat_at_support = (np.abs(environment.triangles[:, :, 2] - extraction.support_z).max(axis=1) < 1e-9) & (environment.face_normals[:, 2] > 0.99)
+    assert flat_at_support.any() == plane
+    # either way, something is under the cube's middle at the support's height
+    hits, _, _ = environment.ray.intersects_location([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])
+    assert np.min(np.abs(hits[:, 2] - extraction.support_z)) < 0.01

@@ -89,19 +89,56 @@ def _mesh(vertices, faces, name):
     return Mesh(vertices, faces)
 
 
-def lowest_point_clearance(object_vertices, positions, environment_vertices, environment_faces, environment_origin=(0, 0, 0)):
-    """Height of the object's lowest vertex above the environment surface right under it, per
-    frame: positions (T, 3) -> (T,) (nan where nothing is under it). Identity rotations only are
-    assumed for the environment; the object's rotation is ignored (use for rest checks)."""
+def drop_report(data, trajectory_id=None, rest_frames=10, rest_speed=0.02):
+    """How a dropped object fared in a rollout file: per frame, the clearance of its lowest
+    point above the static surface right under it (each vertex against the highest static face
+    below it, vertical rays; negative = inside), and whether it came to rest.
+
+    rest_speed : m/s; at rest when the object's fastest vertex moved slower over the last
+        `rest_frames` frames
+    returns dict: clearance_m (T,) list (nan where nothing is under it), min_clearance_m,
+        final_speed_m_s, at_rest, rest_time_s (first frame after which it stays below
+        rest_speed, or None)
+    """
     import trimesh
 
-    environment = trimesh.Trimesh(np.asarray(environment_vertices) + environment_origin, environment_faces, process=False)
-    clearance = []
-    for position in np.asarray(positions, np.float64).reshape(-1, 3):
-        world = np.asarray(object_vertices, np.float64) + position
-        lowest = world[np.argmin(world[:, 2])]
-        origin = np.array([[lowest[0], lowest[1], environment.bounds[1][2] + 1.0]])
-        hits, _, _ = environment.ray.intersects_location(origin, np.array([[0.0, 0.0, -1.0]]))
-        below = hits[hits[:, 2] <= lowest[2] + 1.0] if len(hits) else hits
-        clearance.append(lowest[2] - below[:, 2].max() if len(below) else np.nan)
-    return np.array(clearance)
+    from fignetctl.core.transforms import transform_points
+
+    key = next(iter(data.trajectories)) if trajectory_id is None else trajectory_id
+    trajectory = data.trajectories[key]
+    static = np.asarray(trajectory.static, bool)
+    dynamic = np.flatnonzero(~static)
+    if len(dynamic) != 1 or not static.any():
+        raise FignetError(f"trajectory {key!r}: a drop has one moving object and a static environment "
+                          f"({len(dynamic)} moving, {int(static.sum())} static)")
+    obj = int(dynamic[0])
+    frames = trajectory.num_frames
+    surfaces = []
+    for o in np.flatnonzero(static):
+        mesh = data.meshes[trajectory.mesh_names[o]]
+        world = transform_points(mesh.vertices, trajectory.scales[o], trajectory.positions[-1, o], trajectory.quaternions[-1, o])
+        surfaces.append(trimesh.Trimesh(world, mesh.faces, process=False))
+    environment = trimesh.util.concatenate(surfaces)
+    mesh = data.meshes[trajectory.mesh_names[obj]]
+    vertices = np.stack([transform_points(mesh.vertices, trajectory.scales[obj], trajectory.positions[t, obj], trajectory.quaternions[t, obj])
+                         for t in range(frames)])  # (T, V, 3)
+    top = environment.bounds[1][2] + 1.0
+    points = vertices.reshape(-1, 3)
+    origins = np.column_stack([points[:, :2], np.full(len(points), top)])
+    hits, rays, _ = environment.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(points), 1)))
+    surface = np.full(len(points), -np.inf)
+    np.maximum.at(surface, rays, hits[:, 2])
+    clearance = np.where(np.isfinite(surface), points[:, 2] - surface, np.nan).reshape(frames, -1)
+    per_frame = np.array([np.nanmin(row) if np.isfinite(row).any() else np.nan for row in clearance])
+    speeds = np.linalg.norm(np.diff(vertices, axis=0), axis=2).max(axis=1) / data.dt  # (T-1,)
+    slow = speeds < rest_speed
+    settled = next((t for t in range(len(slow)) if slow[t:].all()), None)
+    return {
+        "clearance_m": [None if not np.isfinite(c) else round(float(c), 5) for c in per_frame],
+        "min_clearance_m": float(np.nanmin(per_frame)) if np.isfinite(per_frame).any() else None,
+        "final_speed_m_s": float(speeds[-rest_frames:].max()),
+        "at_rest": bool(slow[-rest_frames:].all()),
+        "rest_time_s": None if settled is None else float(settled * data.dt),
+        "dt": float(data.dt),
+        "frames": int(frames),
+    }

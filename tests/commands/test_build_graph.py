@@ -59,3 +59,26 @@ def test_errors(extracted):
     assert result.exit_code == 1 and "object.obj" in result.output and "Traceback" not in result.output
     result = run("build-graph", extracted / "volume.npz", "--start", "1,2", "-o", extracted / "s.h5")
     assert result.exit_code == 2 and "3 comma-separated" in result.output
+
+
+def test_drop_report_sees_landing_rest_and_penetration():
+    import dataclasses
+
+    from fignetctl.core.scene_building import drop_report
+    from tests.conftest import box_drop_file
+
+    data = box_drop_file(frames=3)
+    trajectory = data.trajectories["00000"]
+    frames = 40
+    z = np.concatenate([np.linspace(2.0, 0.5, 20), np.full(20, 0.5)])  # falls, lands (half-size 0.5), rests
+    positions = np.zeros((frames, 2, 3), np.float32)
+    positions[:, 1, 2] = z
+    quaternions = np.tile(np.array([1, 0, 0, 0], np.float32), (frames, 2, 1))
+    landed = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)})
+    report = drop_report(landed)
+    assert report["min_clearance_m"] == pytest.approx(0.0, abs=1e-5) and report["at_rest"]
+    assert report["rest_time_s"] == pytest.approx(19 * data.dt)
+    positions = positions.copy()
+    positions[20:, 1, 2] = 0.46  # sinks 4 cm into the floor
+    sunk = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)})
+    assert drop_report(sunk)["min_clearance_m"] == pytest.approx(-0.04, abs=1e-5)

@@ -11,8 +11,11 @@
 #   nerf.pt             fit-nerf
 #   object/             extract-mesh: object.obj, environment.obj, volume.npz, masks/
 #   scene.h5            build-graph: the object dropped from DROP metres above its place
-#   rollout.h5          rollout with the bundled FIGNet*
-#   video.mp4 (+ video_frames/)  rerender from camera VIEW, the object's path traced
+#   rollout.h5          rollout with the bundled FIGNet*, simulated at the size it was trained
+#                       on (--sim-scale auto), objects at rest put to sleep; then a check that
+#                       the object landed and came to rest (benchmarks/drop_check.py)
+#   video.mp4 (+ video_frames/)  rerender from camera VIEW, every EVERY-th frame at FPS
+#                       (slow motion: the frames are dt/sqrt(scale) apart), the path traced
 #   pipeline.rrd        rerun recording of the rollout
 
 FIGNETCTL ?= .venv/bin/fignetctl
@@ -22,9 +25,12 @@ SEED      ?= 0
 DEVICE    ?= auto
 PRESET    ?= fast
 NERF_FLAGS ?=
+EXTRACT_FLAGS ?=
 FACES     ?= 1000
 DROP      ?= 0.15
-STEPS     ?= 60
+STEPS     ?= 90
+EVERY     ?= 2
+FPS       ?= 15
 VIEW      ?= 5
 OBJECT    ?=
 
@@ -54,18 +60,19 @@ $(SCENE)/nerf.pt: $(SCENE)/cameras.npz
 $(SCENE)/object/volume.npz: $(SCENE)/nerf.pt
 	@$(call STAGE,extract-mesh) $(FIGNETCTL) extract-mesh $< --cameras $(SCENE)/cameras.npz \
 	  --images $(SCENE)/capture/images --prompts $(SCENE)/capture/prompts.json $(if $(OBJECT),--object $(OBJECT)) \
-	  --faces $(FACES) --device $(DEVICE) -o $(SCENE)/object --overwrite >/dev/null
+	  --faces $(FACES) $(EXTRACT_FLAGS) --device $(DEVICE) -o $(SCENE)/object --overwrite >/dev/null
 
 $(SCENE)/scene.h5: $(SCENE)/object/volume.npz
 	@$(call STAGE,build-graph) $(FIGNETCTL) build-graph $< --drop-height $(DROP) -o $@ --overwrite
 
 $(SCENE)/rollout.h5: $(SCENE)/scene.h5
-	@$(call STAGE,rollout) $(FIGNETCTL) rollout $< --steps $(STEPS) --device $(DEVICE) \
+	@$(call STAGE,rollout) $(FIGNETCTL) rollout $< --steps $(STEPS) --sim-scale auto --sleep --device $(DEVICE) \
 	  --rerun $(SCENE)/pipeline.rrd -o $@ --overwrite
+	@$(PYTHON) benchmarks/drop_check.py $@ --json $(SCENE)/drop.json || true
 
 $(SCENE)/video.mp4: $(SCENE)/rollout.h5
 	@$(call STAGE,rerender) $(FIGNETCTL) rerender $(SCENE)/nerf.pt $(SCENE)/object/volume.npz $< \
-	  --cameras $(SCENE)/cameras.npz --camera $(VIEW) --trace --device $(DEVICE) -o $@ --overwrite >/dev/null
+	  --cameras $(SCENE)/cameras.npz --camera $(VIEW) --every $(EVERY) --fps $(FPS) --trace --device $(DEVICE) -o $@ --overwrite >/dev/null
 	@echo "$(SCENE): video $@, intermediate files and $(SCENE)/pipeline.rrd" >&2
 
 # Many scenes, one bundled capture per seed: make -j2 -f pipeline.mk scenes SEEDS="0 1 2"

@@ -10,7 +10,7 @@ from fignetctl.commands import options
 @click.option("--model", "model_path", default=None, help="Model file, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
 @click.option("-n", "--max-trajectories", type=click.IntRange(min=1), default=None, help="Evaluate only the first N trajectories.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the metrics json here (otherwise to stdout).")
-@options.sleep_option
+@options.sleep_option(default=False)
 @options.device_option
 @options.overwrite_option
 def evaluate(data, model_path, max_trajectories, output, sleep, device, overwrite):

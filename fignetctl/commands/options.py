@@ -15,10 +15,12 @@ device_option = click.option(
     show_default=True,
     help="Torch device; 'auto' uses CUDA when available.",
 )
-sleep_option = click.option(
-    "--sleep/--no-sleep", default=False, show_default=True,
-    help="Stop simulating objects that have come to rest, until something comes near them (docs/simulator.md).",
-)
+def sleep_option(default):
+    return click.option(
+        "--sleep/--no-sleep", default=default, show_default=True,
+        help="Stop simulating objects that have come to rest, until something comes near them (docs/simulator.md).",
+    )
+
 rerun_option = click.option(
     "--rerun",
     "rerun_path",

@@ -14,7 +14,7 @@ from fignetctl.commands import options
 @click.option("--sim-scale", default="1", show_default=True, callback=lambda ctx, param, value: _sim_scale(value),
               help="Simulate the scene scaled by this factor, or 'auto' to bring its largest moving object to the size "
                    "the model was trained on (2.1 m for the bundled ones); the frames come back at dt / sqrt(scale) apart.")
-@options.sleep_option
+@options.sleep_option(default=True)
 @options.device_option
 @options.rerun_option
 @options.overwrite_option

@@ -501,14 +501,7 @@ def _splat(points, view, shape):
 
     from fignetctl.core.segmentation import fill_holes
 
-    c2w = np.asarray(view.c2w, np.float64)
-    camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
-    image = camera @ np.asarray(view.K, np.float64).T
-    ahead = camera[:, 2] > 1e-9
-    z = np.where(ahead, camera[:, 2], 1.0)
-    u = np.round(image[:, 0] / z - view.pixel_offset).astype(np.int64)
-    v = np.round(image[:, 1] / z - view.pixel_offset).astype(np.int64)
-    keep = ahead & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    u, v, keep = _pixels(points, view, shape)
     splat = np.zeros(shape, np.uint8)
     splat[v[keep], u[keep]] = 1
     return fill_holes(cv2.morphologyEx(splat, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool))
@@ -516,19 +509,23 @@ def _splat(points, view, shape):
 
 def _projects_into(points, mask, view):
     """(P,) bool: world points in front of the view's camera whose pixel is set in `mask`."""
+    u, v, keep = _pixels(points, view, mask.shape)
+    result = np.zeros(len(points), bool)
+    result[keep] = mask[v[keep], u[keep]]
+    return result
+
+
+def _pixels(points, view, shape):
+    """Nearest pixel (u, v) of each world point in the view, and whether it is in front of the
+    camera and inside an image of `shape` (H, W)."""
     c2w = np.asarray(view.c2w, np.float64)
     camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
-    z = camera[:, 2]
-    ahead = z > 1e-9
     image = camera @ np.asarray(view.K, np.float64).T
-    safe_z = np.where(ahead, z, 1.0)
-    u = np.round(image[:, 0] / safe_z - view.pixel_offset).astype(np.int64)
-    v = np.round(image[:, 1] / safe_z - view.pixel_offset).astype(np.int64)
-    height, width = mask.shape
-    valid = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    result = np.zeros(len(points), bool)
-    result[valid] = mask[v[valid], u[valid]]
-    return result
+    ahead = camera[:, 2] > 1e-9
+    z = np.where(ahead, camera[:, 2], 1.0)
+    u = np.round(image[:, 0] / z - view.pixel_offset).astype(np.int64)
+    v = np.round(image[:, 1] / z - view.pixel_offset).astype(np.int64)
+    return u, v, ahead & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
 
 
 def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None):

@@ -22,7 +22,6 @@ import dataclasses
 import numpy as np
 
 from fignetctl.core.transforms import quat_angle_deg
-
 from fignetctl.errors import FignetError
 
 MAX_DISTANCE = 1000.0

@@ -87,8 +87,9 @@ def plot_curves(results, path):
     figure, axes = plt.subplots(1, 2, figsize=(11, 3.8))
     for result in results:
         seconds = [p["train_seconds"] for p in result["curve"]]
-        axes[0].plot(seconds, [p["held_out_psnr"] for p in result["curve"]], "o-", label=result["preset"])
-        axes[1].plot(seconds, [p["depth_error_percent_of_scene"] for p in result["curve"]], "o-", label=result["preset"])
+        label = f'{result["preset"]} ({result.get("threads", 2)} thread{"s" if result.get("threads", 2) > 1 else ""})'
+        axes[0].plot(seconds, [p["held_out_psnr"] for p in result["curve"]], "o-", label=label)
+        axes[1].plot(seconds, [p["depth_error_percent_of_scene"] for p in result["curve"]], "o-", label=label)
     axes[0].axhline(25, color="grey", ls=":", lw=1)
     axes[0].set(xlabel="training time (s, CPU)", ylabel="held-out PSNR (dB)", title="fit-nerf on the bundled capture")
     axes[1].set(xlabel="training time (s, CPU)", ylabel="median |depth error| (% of scene)", yscale="log")
@@ -140,9 +141,14 @@ def main():
     for preset in presets:
         steps = 300 if args.quick else PRESETS[preset].steps
         summary, trainer, renderings, truth = fit_preset(capture, preset, steps, args.evaluations)
+        summary["threads"] = args.threads
         results.append(summary)
         views_picture(trainer, renderings, truth, Path(args.views_picture))
-    document = {"machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}, {args.threads} threads",
+    previous = json.loads(Path(args.out).read_text()) if Path(args.out).exists() and not args.quick else {}
+    if previous.get("quick") is False:  # keep the presets this run did not fit (one preset per run fits an idle hour)
+        results = [r for r in previous["results"] if r["preset"] not in presets] + results
+    results.sort(key=lambda r: list(PRESETS).index(r["preset"]))
+    document = {"machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
                 "capture": str(capture), "quick": args.quick, "results": results}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(document, indent=1))

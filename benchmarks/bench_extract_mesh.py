@@ -82,7 +82,7 @@ def main():
     import trimesh
 
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.mesh_extraction import ExtractionSettings, View, extract_object, hull_box, hull_masks, object_box_from_views, view_masks
+    from fignetctl.core.mesh_extraction import ExtractionSettings, View, consistent_box, extract_object, view_masks
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.segmentation import iou
 
@@ -114,9 +114,7 @@ def main():
         view_masks(views)
         first_ious = {v.name: iou(v.mask, truth_masks[cameras.index_of(v.name)] == obj["id"]) for v in views}
         settings = ExtractionSettings(threshold=args.threshold)
-        coarse = object_box_from_views(views, settings)
-        hull_masks(model.density, hull_box(model.density, coarse, views, settings), views, settings)
-        box = hull_box(model.density, coarse, views, settings)
+        box = consistent_box(model.density, views, settings)
         mask_seconds = time.perf_counter() - started
         ious = {v.name: iou(v.mask, truth_masks[cameras.index_of(v.name)] == obj["id"]) for v in views}
         truth = trimesh.load(capture / "ground_truth" / "objects" / f"{obj['name']}.obj", force="mesh")

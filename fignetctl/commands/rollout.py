@@ -1,5 +1,7 @@
 """`fignetctl rollout`: simulate a scene forward with a learned model."""
 
+import math
+
 import click
 
 from fignetctl.commands import options
@@ -60,7 +62,7 @@ def _sim_scale(value):
         scale = float(value)
     except ValueError:
         scale = float("nan")
-    if not scale > 0 or scale == float("inf"):
+    if not (math.isfinite(scale) and scale > 0):
         raise click.BadParameter(f"{value!r} is not a positive number or 'auto'")
     return scale
 

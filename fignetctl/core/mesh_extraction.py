@@ -417,7 +417,24 @@ def object_box_from_views(views, settings: ExtractionSettings):
     return object_box_from_points(points, names, settings)
 
 
-def hull_box(density, box, views, settings: ExtractionSettings):
+def occupancy_grid(density, box, settings: ExtractionSettings):
+    """(axes, voxel, points (N, 3), occupied (X, Y, Z) bool) of `box` at `hull_resolution`."""
+    axes, voxel = grid_axes(box[0], box[1], settings.hull_resolution)
+    occupied = sample_density(density, axes) > settings.threshold
+    return axes, voxel, np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3), occupied
+
+
+def consistent_box(density, views, settings: ExtractionSettings):
+    """V_o from the views' masks, the masks made to agree: the masks' box (`object_box_from_views`),
+    narrowed to their visual hull (`hull_box`), the masks redrawn from it (`hull_masks`), and
+    the hull taken again with the new masks. The views' masks are replaced."""
+    coarse = object_box_from_views(views, settings)
+    occupancy = occupancy_grid(density, coarse, settings) if settings.hull_resolution > 0 else None
+    hull_masks(density, hull_box(density, coarse, views, settings, occupancy), views, settings)
+    return hull_box(density, coarse, views, settings, occupancy)
+
+
+def hull_box(density, box, views, settings: ExtractionSettings, occupancy=None):
     """V_o refined by all the masks at once (a visual hull).
 
     Per-view masks err differently: one takes in a piece of the container's wall, another
@@ -427,20 +444,15 @@ def hull_box(density, box, views, settings: ExtractionSettings):
     space (behind or under the object) passes the test too, which is why the unseen bottom is
     later cut at the support, and why the result is never wider than `box`.
     Returns `box` unchanged when no voxel passes (or `hull_resolution` is 0).
+
+    occupancy : `occupancy_grid(density, box, settings)` when already sampled
     """
-    import cv2
     from scipy import ndimage
 
     if settings.hull_resolution <= 0 or len(views) < 2:
         return box
-    axes, voxel = grid_axes(box[0], box[1], settings.hull_resolution)
-    occupied = sample_density(density, axes) > settings.threshold
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    inside = occupied.reshape(-1).copy()
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * settings.hull_dilation + 1,) * 2)
-    for view in views:
-        mask = cv2.dilate(view.mask.astype(np.uint8), kernel).astype(bool)
-        inside &= _projects_into(points, mask, view)
+    axes, voxel, points, occupied = occupancy if occupancy is not None else occupancy_grid(density, box, settings)
+    inside = occupied.reshape(-1) & _inside_every_mask(points, views, settings)
     inside = inside.reshape(occupied.shape)
     labels, count = ndimage.label(inside)
     if count == 0:
@@ -468,12 +480,9 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
     from fignetctl.core.segmentation import fill_holes
 
     lower, upper, _ = cut_at_support(density, box, settings)
-    axes, _ = grid_axes(lower, upper, settings.hull_resolution)
-    occupied = sample_density(density, axes) > settings.threshold
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)[occupied.reshape(-1)]
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * settings.hull_dilation + 1,) * 2)
-    for view in views:
-        points = points[_projects_into(points, cv2.dilate(view.mask.astype(np.uint8), kernel).astype(bool), view)]
+    _, _, points, occupied = occupancy_grid(density, np.stack([lower, upper]), settings)
+    points = points[occupied.reshape(-1)]
+    points = points[_inside_every_mask(points, views, settings)]
     if len(points) == 0:
         return views
     for view in views:
@@ -493,6 +502,17 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
         cv2.grabCut(bgr, labels, None, background, foreground, 5, cv2.GC_INIT_WITH_MASK)
         view.mask = fill_holes((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD))
     return views
+
+
+def _inside_every_mask(points, views, settings: ExtractionSettings):
+    """(P,) bool: points that project inside every view's mask, each grown by `hull_dilation` px."""
+    import cv2
+
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * settings.hull_dilation + 1,) * 2)
+    inside = np.ones(len(points), bool)
+    for view in views:
+        inside &= _projects_into(points, cv2.dilate(view.mask.astype(np.uint8), kernel).astype(bool), view)
+    return inside
 
 
 def _splat(points, view, shape):

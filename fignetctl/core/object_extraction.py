@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.mesh_extraction import (
-    ExtractionSettings, View, extract_object, hull_box, hull_masks, object_box_from_views, view_masks, write_extraction,
+    ExtractionSettings, View, consistent_box, extract_object, view_masks, write_extraction,
 )
 from fignetctl.errors import FignetError, FormatError
 
@@ -50,9 +50,7 @@ def run_extraction(inputs: ExtractionInputs, out_dir, settings: ExtractionSettin
         views = []
     else:
         views = _masked_views(inputs, cameras, model, segmentation)
-        coarse = object_box_from_views(views, settings)
-        hull_masks(model.density, hull_box(model.density, coarse, views, settings), views, settings)
-        box = hull_box(model.density, coarse, views, settings)
+        box = consistent_box(model.density, views, settings)
     extraction = extract_object(model.density, box, settings)
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}}
     write_extraction(out_dir, extraction, settings, extra)

@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from fignetctl.core.transforms import quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize
+from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize
 from fignetctl.errors import FignetError
 
 TRAINING_OBJECT_SIDE = 2.1
@@ -61,9 +61,8 @@ def retimed_history(trajectory, dt: float, new_dt: float, gravity):
     fraction = new_dt / dt
     # world-frame rotation of the step: q_t = d ⊗ q_{t−1}; keep q_t, shrink d's angle
     step = quat_multiply(quaternions[1], quat_conjugate(quaternions[0]))
-    step = np.where(step[:, :1] < 0, -step, step)  # the short way round
-    angle = 2.0 * np.arctan2(np.linalg.norm(step[:, 1:], axis=1), step[:, 0])
-    shrunk = quat_from_axis_angle(step[:, 1:], fraction * angle)
+    axis = np.where(step[:, :1] < 0, -step, step)[:, 1:]  # the short way round
+    shrunk = quat_from_axis_angle(axis, fraction * np.radians(quat_angle_deg(quaternions[0], quaternions[1])))
     quaternions[0] = quat_normalize(quat_multiply(quat_conjugate(shrunk), quaternions[1]))
     return positions, quaternions
 

@@ -59,6 +59,11 @@ class ExtractionSettings:
     """When masks are redrawn: GrabCut may still give the object a ring this wide around its
     splat, as a fraction of the splat's size (√area); the NeRF often holds an object's lower
     part only faintly, so its splat falls short there."""
+    hull_mask_clearance: float = 0.1
+    """When masks are redrawn, the splat leaves out the object's lowest part, this fraction of
+    V_o's height above the support: there the hull also holds the support's own density beside
+    the object (seen in one view, hidden behind the object in the others), which would pull a
+    piece of the floor into that view's mask. GrabCut fills the object's base in from colour."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -466,11 +471,16 @@ def hull_box(density, box, views, settings: ExtractionSettings, occupancy=None):
     return np.stack([np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])])  # the hull only ever shrinks V_o
 
 
+HOLE_FRACTION = 0.02
+"""Holes of a redrawn mask up to this fraction of its area are GrabCut's specks and are filled;
+larger ones are openings through the object (a mug's handle) and stay."""
+
+
 def hull_masks(density, box, views, settings: ExtractionSettings):
     """Redraw each prompted view's mask from the object in 3D, so every view agrees.
 
-    The occupied voxels of the object's box (`hull_box`, cut at the support) that
-    project inside every mask are splatted into each view; GrabCut then settles the edge from
+    The occupied voxels of the object's box (`hull_box`, cut `hull_mask_clearance` above the
+    support) that project inside every mask are splatted into each view; GrabCut then settles the edge from
     colour, with the splat as probable foreground, its core (where the old mask agreed) as
     certain foreground and a ring around it as probable background. Views without an image
     or without prompts (masks the user gave) keep their masks. Returns the views.
@@ -479,7 +489,9 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
 
     from fignetctl.core.segmentation import fill_holes
 
-    lower, upper, _ = cut_at_support(density, box, settings)
+    lower, upper, support = cut_at_support(density, box, settings)
+    if support is not None:
+        lower[2] = max(lower[2], support + settings.hull_mask_clearance * (upper[2] - support))
     _, _, points, occupied = occupancy_grid(density, np.stack([lower, upper]), settings)
     points = points[occupied.reshape(-1)]
     points = points[_inside_every_mask(points, views, settings)]
@@ -499,8 +511,9 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
             continue
         background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
         bgr = np.ascontiguousarray(np.asarray(view.image, np.uint8)[..., ::-1])
+        cv2.setRNGSeed(0)  # GrabCut's k-means draws from OpenCV's global generator
         cv2.grabCut(bgr, labels, None, background, foreground, 5, cv2.GC_INIT_WITH_MASK)
-        view.mask = fill_holes((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD))
+        view.mask = fill_holes((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD), HOLE_FRACTION)
     return views
 
 

@@ -91,6 +91,7 @@ def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings(), pixel_of
         labels[0, :] = labels[-1, :] = labels[:, 0] = labels[:, -1] = cv2.GC_BGD
     background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = np.ascontiguousarray(np.asarray(image, np.uint8)[..., ::-1])
+    cv2.setRNGSeed(0)  # GrabCut's k-means draws from OpenCV's global generator: same mask every call
     cv2.grabCut(bgr, labels, None, background, foreground, settings.iterations, cv2.GC_INIT_WITH_MASK)
     mask = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
     return fill_holes(component_at(mask, v, u))
@@ -149,14 +150,22 @@ def component_at(mask, v, u):
     return labels == labels[v, u]
 
 
-def fill_holes(mask):
-    """Fill the holes of a binary mask (background not connected to the image border)."""
+def fill_holes(mask, max_fraction=None):
+    """Fill the holes of a binary mask (background not connected to the image border); with
+    `max_fraction`, only holes no larger than that fraction of the mask's area (specks, not
+    the opening of a mug's handle)."""
     import cv2
 
     padded = np.pad(mask.astype(np.uint8), 1)
     flood = padded.copy()
     cv2.floodFill(flood, np.zeros((flood.shape[0] + 2, flood.shape[1] + 2), np.uint8), (0, 0), 1)
-    return (padded | (1 - flood)).astype(bool)[1:-1, 1:-1]
+    holes = (1 - flood).astype(np.uint8)
+    if max_fraction is not None:
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+        small = stats[:, cv2.CC_STAT_AREA] <= max_fraction * padded.sum()
+        small[0] = False  # label 0: everything that is not a hole
+        holes = small[labels].astype(np.uint8)
+    return (padded | holes).astype(bool)[1:-1, 1:-1]
 
 
 def iou(a, b):

@@ -210,7 +210,18 @@ def test_a_faint_support_is_found():
     assert mx.support_height(lambda p: np.full(len(p), 1.0), [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1) is None
 
 
-def test_masks_redrawn_from_the_hull_agree_with_the_object():
+def with_soft_floor(density):
+    """The field with the floor's density fading out over ~1 cm above it, as a NeRF's does."""
+    def soft(points):
+        z = np.asarray(points)[:, 2]
+        return np.maximum(density(points), np.where(z > 0, 2000.0 * np.exp(-(z / 0.006) ** 2), 0.0))
+
+    return soft
+
+
+@pytest.mark.parametrize("density", [cube_beside_wall, with_soft_floor(cube_beside_wall)], ids=["hard-floor", "soft-floor"])
+def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
+    """The object's base, left out of the splat (hull_mask_clearance), is filled in from colour."""
     import cv2
 
     from fignetctl.core.cameras import look_at_c2w
@@ -234,8 +245,8 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object():
         views.append(view)
     before = [iou(v.mask, t) for v, t in zip(views, truths)]
     settings = mx.ExtractionSettings()
-    box = mx.hull_box(cube_beside_wall, np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]]), views, settings)
-    mx.hull_masks(cube_beside_wall, box, views, settings)
+    box = mx.hull_box(density, np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]]), views, settings)
+    mx.hull_masks(density, box, views, settings)
     after = [iou(v.mask, t) for v, t in zip(views, truths)]
     assert min(before) < 0.8 and min(after) > 0.9, (before, after)
 

@@ -12,7 +12,8 @@ from fignetctl.commands import options
 @click.option("--size", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True, help="Network size preset (paper: latent 128, 10 message-passing steps).")
 @click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.2]")
 @click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
-@click.option("--max-static-edge", type=click.FloatRange(min=0, min_open=True), default=1.0, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m).")
+@click.option("--max-static-edge", type=click.FloatRange(min=0), default=0.0, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m); 0 keeps them whole.")
+@click.option("--max-vertex-offset", type=click.FloatRange(min=0), default=1.0, show_default=True, help="Clamp the face-face features' vertex offsets to this length (m), so huge floor triangles look like near ones; 0: no clamp.")
 @click.option("--loss", type=click.Choice(["mse", "huber"]), default="mse", show_default=True, help="Loss on the normalised accelerations; huber weighs rare contact spikes less.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")
@@ -23,7 +24,7 @@ from fignetctl.commands import options
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
+def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, max_vertex_offset, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
     Adam with the learning rate decaying exponentially 1e-3 -> 1e-4 over --steps, noise on
@@ -43,7 +44,7 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
     if resume and overwrite:
         raise click.UsageError("--resume continues --output, --overwrite replaces it: give one")
     path = options.output_path(output, overwrite or resume)
-    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge)
+    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge or None, max_vertex_offset or None)
     training_config = TrainingConfig(steps=steps, batch_size=batch_size, loss=loss, checkpoint_every=checkpoint_every, seed=seed)
     resume_from = path if resume and path.exists() else None
     trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from)

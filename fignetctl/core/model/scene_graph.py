@@ -76,6 +76,12 @@ class GraphConfig:
     some way ahead; 0.2 m halves the edges of 0.4 m."""
     surface_edges: bool = False
     """True: FIGNet (node–node surface-mesh edges); False: FIGNet* (none)."""
+    max_vertex_offset: float | None = 1.0
+    """Face–face features hold each face's vertices relative to its closest point; vectors
+    longer than this (metres) are shortened to it, keeping their direction. A floor of a few
+    huge triangles then looks like any other face near the contact, instead of setting the
+    normaliser's scale to tens of metres, and without the edges a subdivided floor costs.
+    None: not clamped (model files older than this field read as None)."""
 
 
 def graph_signature_for(config: GraphConfig) -> GraphSignature:
@@ -305,7 +311,7 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     node_history = node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions)
     vertex_nodes = VertexNodes(node_vertex)
     edge_sets = object_mesh_edge_sets(geometry, node_vertex, node_object, node_history[1])
-    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes)
+    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes, config.max_vertex_offset)
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
@@ -461,28 +467,29 @@ def surface_edges_between(geometry, vertex_nodes):
     return np.sort(candidates[both])
 
 
-def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes):
+def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None):
     """Collision hyper-edges for the face pairs, in both directions."""
     sender_faces = np.concatenate([pair_i, pair_j])
     receiver_faces = np.concatenate([pair_j, pair_i])
     sender_nodes = vertex_nodes.nodes(geometry.faces[sender_faces])
     receiver_nodes = vertex_nodes.nodes(geometry.faces[receiver_faces])
-    features, sender_order, receiver_order = face_face_features(node_now[sender_nodes], node_now[receiver_nodes])
+    features, sender_order, receiver_order = face_face_features(node_now[sender_nodes], node_now[receiver_nodes], max_vertex_offset)
     senders = np.take_along_axis(sender_nodes, sender_order, axis=1)
     receivers = np.take_along_axis(receiver_nodes, receiver_order, axis=1)
     return _edge_set(FACE_FACE, features, senders, receivers)
 
 
-def face_face_features(sender_triangles, receiver_triangles):
+def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=None):
     """(E, 3, 3) x2 -> features (E, 34) float32, sender_order (E, 3), receiver_order (E, 3).
 
-    The orders give each triangle's vertices canonically (see the module docstring).
+    The orders give each triangle's vertices canonically (see the module docstring); vertex
+    offsets from the closest point are clamped to `max_vertex_offset` in length (None: not).
     """
     sender_point, receiver_point, distance = closest_points_triangles(sender_triangles, receiver_triangles)
     sender_order = canonical_vertex_order(sender_triangles, sender_point)
     receiver_order = canonical_vertex_order(receiver_triangles, receiver_point)
-    sender_relative = _ordered(sender_triangles, sender_order) - sender_point[:, None]
-    receiver_relative = _ordered(receiver_triangles, receiver_order) - receiver_point[:, None]
+    sender_relative = _clamped(_ordered(sender_triangles, sender_order) - sender_point[:, None], max_vertex_offset)
+    receiver_relative = _clamped(_ordered(receiver_triangles, receiver_order) - receiver_point[:, None], max_vertex_offset)
     columns = [
         receiver_point - sender_point,
         distance[:, None],
@@ -510,6 +517,14 @@ def canonical_vertex_order(triangles, points):
     quantized = np.round(np.concatenate([relative, distance[..., None]], axis=2) / resolution[..., None])
     keys = (quantized[..., 2], quantized[..., 1], quantized[..., 0], quantized[..., 3])
     return np.lexsort(keys, axis=-1)
+
+
+def _clamped(vectors, max_length):
+    """(..., 3) vectors shortened to at most `max_length`, directions kept (None: unchanged)."""
+    if max_length is None:
+        return vectors
+    lengths = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    return vectors * np.minimum(1.0, max_length / np.maximum(lengths, 1e-300))
 
 
 def _ordered(triangles, order):

@@ -50,11 +50,13 @@ class SimulatorConfig:
     """Collision radius and FIGNet (surface edges) or FIGNet* (none)."""
     max_faces_per_object: int | None = 256
     """Meshes are decimated (quadric error) to at most this many faces; None keeps them."""
-    max_static_edge: float | None = 1.0
+    max_static_edge: float | None = None
     """Static meshes are subdivided until no edge is longer than this (m); None keeps them.
     The face–face features hold each face's vertices relative to its closest point, so one
     80 m floor triangle beside 0.1 m object triangles would set the normaliser's scale to
-    tens of metres and hide the object's contact geometry (models before 0.2 used None)."""
+    tens of metres and hide the object's contact geometry. Subdividing the floor to 1 m (the
+    v2 retraining) fixed that at 2.8x the face-face edges; clamping the offsets
+    (`GraphConfig.max_vertex_offset`, the default now) fixes it with none."""
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
@@ -62,9 +64,10 @@ class SimulatorConfig:
     @classmethod
     def from_json(cls, text: str) -> "SimulatorConfig":
         values = json.loads(text)
+        graph = {"max_vertex_offset": None, **values["graph"]}  # absent: a model file older than the field
         return cls(
             network=NetworkConfig(**values["network"]),
-            graph=GraphConfig(**values["graph"]),
+            graph=GraphConfig(**graph),
             max_faces_per_object=values["max_faces_per_object"],
             max_static_edge=values.get("max_static_edge"),  # absent: a model trained without
         )

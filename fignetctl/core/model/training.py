@@ -225,12 +225,12 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
     return trainer
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=1.0) -> SimulatorConfig:
+def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
 
-    graph = GraphConfig(surface_edges=architecture == "fignet")
+    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset)
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
     return SimulatorConfig(network=PRESETS[size], graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge)

@@ -75,3 +75,6 @@ def test_models_saved_before_the_setting_keep_their_meshes():
     import json
 
     assert SimulatorConfig.from_json(json.dumps(values)).max_static_edge is None
+    del values["graph"]["max_vertex_offset"]
+    assert SimulatorConfig.from_json(json.dumps(values)).graph.max_vertex_offset is None
+    assert SimulatorConfig().graph.max_vertex_offset == 1.0

@@ -92,6 +92,26 @@ def test_face_face_features_do_not_depend_on_vertex_order():
         np.testing.assert_array_equal((rolled_receiver - shift) % 3, receiver_order)
 
 
+def test_face_face_vertex_offsets_are_clamped_keeping_their_direction():
+    """A small face 5 cm above a 40 m floor triangle: the floor's far vertices are shortened to
+    the clamp; the closest-point vector, the distance, the normals and short offsets stay."""
+    face = np.array([[[0.0, 0.0, 0.05], [0.1, 0.0, 0.05], [0.0, 0.1, 0.05]]])
+    floor = np.array([[[-20.0, -20.0, 0.0], [20.0, -20.0, 0.0], [0.0, 20.0, 0.0]]])
+    free, _, _ = face_face_features(face, floor)
+    clamped, _, _ = face_face_features(face, floor, max_vertex_offset=1.0)
+    # columns: closest-point vector 0:3, distance 3, sender offsets 4:13 and norms 13:16,
+    # receiver offsets 16:25 and norms 25:28, normals 28:34
+    receiver_offsets = clamped[0, 16:25].reshape(3, 3)
+    np.testing.assert_allclose(np.linalg.norm(receiver_offsets, axis=1), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(clamped[0, 25:28], 1.0, rtol=1e-6)
+    free_offsets = free[0, 16:25].reshape(3, 3)
+    assert (np.linalg.norm(free_offsets, axis=1) > 20).all()
+    unit = free_offsets / np.linalg.norm(free_offsets, axis=1, keepdims=True)
+    np.testing.assert_allclose(receiver_offsets, unit, atol=1e-6)
+    np.testing.assert_array_equal(clamped[0, :16], free[0, :16])
+    np.testing.assert_array_equal(clamped[0, 28:], free[0, 28:])
+
+
 def test_face_face_features_of_degenerate_triangles_are_finite():
     point = np.zeros((1, 3, 3))
     segment = np.array([[[0, 0, 1.0], [1, 0, 1.0], [2, 0, 1.0]]])

@@ -6,11 +6,15 @@ run (copies of the model file taken while it trained) on held-out trajectories.
     python benchmarks/learning_curve.py --final data/fignet-star-movi-b.pt \
         --snapshots 'data/snapshots/fignet-star-*.pt' --test data/movi-b-test.h5 -n 10 \
         --out docs/results/learning-curve-fignet-star.json --plot docs/images/learning-curve-fignet-star.png
+
+With --reuse, the points of snapshots already in --out (same step, same trajectories) are kept
+rather than evaluated again, so the curve of a run still training can be extended.
 """
 
 import argparse
 import glob
 import json
+import os
 
 import torch
 
@@ -24,10 +28,16 @@ def training_history(path):
     return json.loads(state.get("history", "[]")), int(state.get("step", 0))
 
 
-def held_out_points(snapshot_paths, test_path, max_trajectories):
+def held_out_points(snapshot_paths, test_path, max_trajectories, known=None):
+    """One point per snapshot; `known` maps a step to a point already measured."""
     points = []
     for path in snapshot_paths:
         history, step = training_history(path)
+        if any(p["step"] == step for p in points):
+            continue  # the final model file is also the last snapshot
+        if known and step in known:
+            points.append(known[step])
+            continue
         metrics = evaluate_file(load_checkpoint(path), test_path, max_trajectories)["metrics"]["model"]
         seconds = history[-1]["seconds"] if history else 0.0
         points.append({"step": step, "seconds": seconds, **{h: m["all"] for h, m in metrics.items()}})
@@ -68,9 +78,16 @@ def main():
     parser.add_argument("--out", required=True)
     parser.add_argument("--plot", required=True)
     parser.add_argument("--title", default="")
+    parser.add_argument("--reuse", action="store_true", help="keep the points already in --out")
     args = parser.parse_args()
     history, _ = training_history(args.final)
-    points = held_out_points(sorted(glob.glob(args.snapshots)) + [args.final], args.test, args.n)
+    known = {}
+    if args.reuse and os.path.exists(args.out):
+        with open(args.out) as f:
+            previous = json.load(f)
+        if previous["test"] == args.test and previous["trajectories"] == args.n:
+            known = {p["step"]: p for p in previous["held_out"]}
+    points = held_out_points(sorted(glob.glob(args.snapshots)) + [args.final], args.test, args.n, known)
     with open(args.out, "w") as f:
         json.dump({"test": args.test, "trajectories": args.n, "held_out": points, "loss": history[::10]}, f, indent=1)
     plot(history, points, args.plot, args.title)

@@ -487,7 +487,7 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
     """
     import cv2
 
-    from fignetctl.core.segmentation import fill_holes
+    from fignetctl.core.segmentation import fill_holes, grabcut
 
     lower, upper, support = cut_at_support(density, box, settings)
     if support is not None:
@@ -509,11 +509,7 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
         labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = cv2.GC_FGD
         if not (labels == cv2.GC_FGD).any():
             continue
-        background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
-        bgr = np.ascontiguousarray(np.asarray(view.image, np.uint8)[..., ::-1])
-        cv2.setRNGSeed(0)  # GrabCut's k-means draws from OpenCV's global generator
-        cv2.grabCut(bgr, labels, None, background, foreground, 5, cv2.GC_INIT_WITH_MASK)
-        view.mask = fill_holes((labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD), HOLE_FRACTION)
+        view.mask = fill_holes(grabcut(view.image, labels, 5), HOLE_FRACTION)
     return views
 
 

@@ -89,12 +89,23 @@ def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings(), pixel_of
     cv2.circle(labels, (int(u), int(v)), int(settings.seed_radius), int(cv2.GC_FGD), -1)
     if (labels == cv2.GC_BGD).all() or not (labels == cv2.GC_BGD).any():
         labels[0, :] = labels[-1, :] = labels[:, 0] = labels[:, -1] = cv2.GC_BGD
+    return fill_holes(component_at(grabcut(image, labels, settings.iterations), v, u))
+
+
+def grabcut(image, labels, iterations):
+    """GrabCut from a label image (cv2.GC_* per pixel) -> (H, W) bool foreground.
+
+    image : (H, W, 3) uint8 RGB; labels : (H, W) uint8, refined in place. OpenCV's global
+    generator, which GrabCut's k-means draws from, is seeded first: the same inputs give the
+    same mask whatever ran before.
+    """
+    import cv2
+
     background, foreground = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     bgr = np.ascontiguousarray(np.asarray(image, np.uint8)[..., ::-1])
-    cv2.setRNGSeed(0)  # GrabCut's k-means draws from OpenCV's global generator: same mask every call
-    cv2.grabCut(bgr, labels, None, background, foreground, settings.iterations, cv2.GC_INIT_WITH_MASK)
-    mask = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
-    return fill_holes(component_at(mask, v, u))
+    cv2.setRNGSeed(0)
+    cv2.grabCut(bgr, labels, None, background, foreground, iterations, cv2.GC_INIT_WITH_MASK)
+    return (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
 
 
 def plane_pixels(points, neighbourhood, prompt_point, settings, planes=3):
@@ -161,7 +172,7 @@ def fill_holes(mask, max_fraction=None):
     cv2.floodFill(flood, np.zeros((flood.shape[0] + 2, flood.shape[1] + 2), np.uint8), (0, 0), 1)
     holes = (1 - flood).astype(np.uint8)
     if max_fraction is not None:
-        count, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(holes, connectivity=4)
         small = stats[:, cv2.CC_STAT_AREA] <= max_fraction * padded.sum()
         small[0] = False  # label 0: everything that is not a hole
         holes = small[labels].astype(np.uint8)

@@ -11,14 +11,17 @@ from fignetctl.commands import options
 @click.option("-n", "--max-trajectories", type=click.IntRange(min=1), default=None, help="Evaluate only the first N trajectories.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the metrics json here (otherwise to stdout).")
 @options.sleep_option(default=False)
+@options.free_flight_option(default=False)
 @options.device_option
 @options.overwrite_option
-def evaluate(data, model_path, max_trajectories, output, sleep, device, overwrite):
+def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, device, overwrite):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (deg) of the dynamic objects after 50 steps and at
     2 seconds, overall and per shape, for the model and two baselines: objects that keep their
-    last velocity under gravity and stop at the floor, and objects that stand still.
+    last velocity under gravity and stop at the floor, and objects that stand still. By default
+    the network moves every object (the paper's figure); --free-flight and --sleep evaluate
+    what `rollout` does by default.
 
     \b
     Example:
@@ -32,7 +35,8 @@ def evaluate(data, model_path, max_trajectories, output, sleep, device, overwrit
     path = options.output_path(output, overwrite) if output else None
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(unit="trajectory", desc="evaluate") as bar:
-        metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1), sleep=sleep)
+        metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1), sleep=sleep,
+                                free_flight=free_flight)
     metrics["model"] = str(model_path or "fignet-star-movi-b")
     text = json.dumps(metrics, indent=2)
     if path is None:

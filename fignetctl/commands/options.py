@@ -21,6 +21,15 @@ def sleep_option(default):
         help="Stop simulating objects that have come to rest, until something comes near them (docs/simulator.md).",
     )
 
+
+def free_flight_option(default):
+    return click.option(
+        "--free-flight/--no-free-flight", default=default, show_default=True,
+        help="Move objects that touch nothing in exact free flight (gravity, constant spin) instead of by the "
+             "network, which is not run while nothing touches (docs/simulator.md).",
+    )
+
+
 rerun_option = click.option(
     "--rerun",
     "rerun_path",

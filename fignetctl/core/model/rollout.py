@@ -97,10 +97,13 @@ class Sleepers:
         return self._geometries[key]
 
 
-def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, sleep: SleepSettings | None = None):
+def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, sleep: SleepSettings | None = None,
+            free_flight=None):
     """Predict `num_steps` frames after frames 0 and 1 of `scene`.
 
     sleep : SleepSettings to let resting objects sleep (module docstring); None: never
+    free_flight : gravity · dt² (3,) to move objects that touch nothing in exact free flight
+        (LearnedSimulator.step); None: the network moves every dynamic object
     returns positions (2 + K, O, 3), quaternions (2 + K, O, 4) float64
     """
     positions = [scene.positions[0], scene.positions[1]]
@@ -120,7 +123,7 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
             geometry = scene.geometry if sleepers is None else sleepers.scene_geometry()
             history_positions = np.stack([positions[-2], positions[-1], next_static[0]])
             history_quaternions = np.stack([quaternions[-2], quaternions[-1], next_static[1]])
-            new_position, new_quaternion = simulator.step(geometry, history_positions, history_quaternions)
+            new_position, new_quaternion = simulator.step(geometry, history_positions, history_quaternions, free_flight=free_flight)
         check_step(step, new_position, new_quaternion, positions, quaternions, max_distance)
         positions.append(new_position)
         quaternions.append(new_quaternion)

@@ -28,13 +28,20 @@ def sleep_settings(data) -> SleepSettings:
     return SleepSettings(dt=float(data.dt), gravity=gravity if gravity > 0 else 9.81)
 
 
-def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False) -> TrajectoryFile:
+def free_flight_acceleration(data):
+    """gravity · dt² (3,) of a file: the step of free flight (LearnedSimulator.step)."""
+    return np.asarray(data.gravity, np.float64) * float(data.dt) ** 2
+
+
+def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False,
+                 free_flight=False) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
 
     sim_scale : simulate the scene scaled by this factor (or "auto": to the training objects'
         size) and map the frames back; the result's frame time is then dt / √sim_scale
         (fignetctl.core.model.similarity)
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
+    free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
     """
     from fignetctl.core.model import similarity
 
@@ -56,7 +63,8 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         return rollout_result(data, key, positions, quaternions, simulator, dt, scale)
 
     try:
-        positions, quaternions = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(data) if sleep else None)
+        positions, quaternions = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(data) if sleep else None,
+                                         free_flight=free_flight_acceleration(data) if free_flight else None)
     except RolloutError as error:
         error.partial_file = result(error.positions, error.quaternions)
         raise
@@ -77,7 +85,7 @@ def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_sc
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False) -> dict:
+def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
@@ -85,7 +93,9 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     keys = list(data.trajectories)[:max_trajectories]
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
-    results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None)
+    results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None,
+                              free_flight_acceleration(data) if free_flight else None)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
-    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep), "metrics": results}
+    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),
+            "free_flight": bool(free_flight), "metrics": results}

@@ -262,6 +262,8 @@ class SceneGraph:
     num_dynamic_vertex_nodes : the first this many nodes are geometry.dynamic_vertices
     node_positions : (3, N, 3) float64 world positions of the nodes at t−1, t, t+1 (vertices
         for mesh nodes, centres of mass for object nodes)
+    touching : (O,) bool, objects with a face in a collision pair (within the radius of
+        another object's face)
     """
 
     graph: MultiGraph
@@ -270,6 +272,7 @@ class SceneGraph:
     node_positions: np.ndarray
     geometry: SceneGeometry = dataclasses.field(repr=False)
     poses: tuple = dataclasses.field(repr=False)
+    touching: np.ndarray = dataclasses.field(repr=False)
 
     @property
     def dynamic_vertex_positions(self) -> np.ndarray:
@@ -317,7 +320,9 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
     num_dynamic = len(geometry.dynamic_vertices)
-    return SceneGraph(graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions))
+    touching = np.zeros(len(geometry.static), bool)
+    touching[geometry.face_object[np.concatenate([pair_i, pair_j])]] = True
+    return SceneGraph(graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions), touching)
 
 
 def collision_face_pairs(geometry, vertices_now, radius):

@@ -33,7 +33,7 @@ from fignetctl.core.model.scene_graph import (
     graph_signature_for,
 )
 from fignetctl.core.shape_matching import fit_rigid_transform
-from fignetctl.core.transforms import matrix_to_quat
+from fignetctl.core.transforms import matrix_to_quat, quat_conjugate, quat_multiply, quat_normalize
 
 # Floor of every normaliser's std: features are in metres (per step) and material units, so a
 # spread below a micrometre is float rounding, which must not be blown up into signal.
@@ -119,19 +119,49 @@ class LearnedSimulator(nn.Module):
         return 2.0 * vertices_now - vertices_previous + acceleration
 
     @torch.no_grad()
-    def step(self, geometry, positions, quaternions):
+    def step(self, geometry, positions, quaternions, free_flight=None):
         """Predict the poses of frame t+1.
 
         positions (3, O, 3), quaternions (3, O, 4): frames t−1, t, t+1; frame t+1 is read for
         static objects only. Returns next positions (O, 3) and quaternions (O, 4), float64,
         with static objects taken from frame t+1.
+
+        free_flight : None, or gravity · dt² (3,) in metres per step²: a dynamic object with no
+            face within the collision radius of another object's face has no edge to anything
+            outside itself, so physics leaves one answer for it, free flight
+            (`free_flight_poses`), which is then used instead of the network's; when no object
+            touches anything the network is not run.
         """
         scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph)
+        free = ~geometry.static & ~scene_graph.touching
+        if free_flight is not None and free.any():
+            flown = free_flight_poses(positions[:2], quaternions[:2], free_flight)
+            if free.sum() == (~geometry.static).sum():
+                return (np.where(free[:, None], flown[0], positions[2]).astype(np.float64),
+                        np.where(free[:, None], flown[1], quaternions[2]).astype(np.float64))
         device = next(self.parameters()).device
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
         previous, now = scene_graph.dynamic_vertex_positions[:2]
         next_vertices = self.postprocess(normalized, previous, now)
-        return rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
+        next_positions, next_quaternions = rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
+        if free_flight is not None and free.any():
+            next_positions[free], next_quaternions[free] = flown[0][free], flown[1][free]
+        return next_positions, next_quaternions
+
+
+def free_flight_poses(positions, quaternions, acceleration):
+    """Poses at t+1 of rigid bodies in free flight: constant acceleration of the centre,
+    constant angular velocity (PyBullet's rigid bodies have no gyroscopic term here: one
+    step of this matches its free-flight frames to 2e-7 m and 0.005°).
+
+    positions (2, O, 3), quaternions (2, O, 4): frames t−1, t; acceleration (3,) m/step²
+    returns (O, 3), (O, 4) float64
+    """
+    positions = np.asarray(positions, np.float64)
+    quaternions = np.asarray(quaternions, np.float64)
+    next_positions = 2.0 * positions[1] - positions[0] + np.asarray(acceleration, np.float64)
+    turn = quat_multiply(quaternions[1], quat_conjugate(quaternions[0]))
+    return next_positions, quat_normalize(quat_multiply(turn, quaternions[1]))
 
 
 def rigid_poses_from_vertices(geometry, dynamic_vertex_positions, static_positions, static_quaternions):

@@ -7,8 +7,8 @@ import pytest
 
 from fignetctl.core.model import similarity
 from fignetctl.core.model.runs import rollout_file
-from fignetctl.core.model.simulator import SimulatorConfig
-from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_from_axis_angle, quat_multiply
+from fignetctl.core.model.simulator import SimulatorConfig, free_flight_poses
+from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.errors import FignetError
 from tests.conftest import box_drop_file
@@ -26,16 +26,13 @@ class BallisticSimulator:
         self.dt = dt
         self.sides = []
 
-    def step(self, geometry, positions, quaternions):
+    def step(self, geometry, positions, quaternions, free_flight=None):
         dynamic = ~geometry.static
         rest = geometry.rest_vertices[np.isin(geometry.vertex_object, np.flatnonzero(dynamic))]
         self.sides.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
-        new_positions = positions[2].copy()
-        new_quaternions = quaternions[2].copy()
-        new_positions[dynamic] = 2 * positions[1, dynamic] - positions[0, dynamic] + GRAVITY * self.dt**2
-        spin = quat_multiply(quaternions[1, dynamic], quat_conjugate(quaternions[0, dynamic]))
-        new_quaternions[dynamic] = quat_multiply(spin, quaternions[1, dynamic])
-        return new_positions, new_quaternions
+        flown = free_flight_poses(positions[:2], quaternions[:2], GRAVITY * self.dt**2)
+        return (np.where(dynamic[:, None], flown[0], positions[2]),
+                np.where(dynamic[:, None], flown[1], quaternions[2]))
 
 
 def small_throw(path, size=0.1, dt=1 / 30, spin=3.0):

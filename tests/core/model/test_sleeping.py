@@ -21,7 +21,7 @@ class DriftingSimulator:
         self.drift = drift
         self.static_seen = []
 
-    def step(self, geometry, positions, quaternions):
+    def step(self, geometry, positions, quaternions, free_flight=None):
         static = geometry.static
         self.static_seen.append(static.copy())
         new = positions[2].copy()

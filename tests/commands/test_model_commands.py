@@ -59,6 +59,24 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     assert "box" in metrics["model"]["50_steps"]["per_shape"]
 
 
+def test_free_flight_makes_a_falling_box_exact_in_rollout_and_evaluate(trained, tmp_path):
+    _, data, model = trained  # the box falls freely for the first 50 steps
+    truth = read_trajectories(data).trajectories["00000"].positions
+    errors = {}
+    for flag in ("--free-flight", "--no-free-flight"):
+        out = tmp_path / f"{flag}.h5"
+        result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "20", flag, "-o", str(out)])
+        assert result.exit_code == 0, result.output
+        errors[flag] = np.abs(read_trajectories(out).trajectories["00000"].positions[:, 1] - truth[:22, 1]).max()
+    assert errors["--free-flight"] < 1e-4 < errors["--no-free-flight"]  # a 6-step model does not fall at g
+    out = tmp_path / "metrics.json"
+    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--free-flight", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    assert report["free_flight"] is True
+    assert report["metrics"]["model"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3
+
+
 @pytest.mark.parametrize("bad", ["garbage", "missing"])
 def test_bad_model_file_is_one_line_error(trained, tmp_path, bad):
     _, data, _ = trained

@@ -133,26 +133,27 @@ class LearnedSimulator(nn.Module):
             touches anything the network is not run.
         """
         scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph)
-        free = ~geometry.static & ~scene_graph.touching
-        if free_flight is not None and free.any():
+        flying = None
+        if free_flight is not None:
+            flying = ~geometry.static & ~scene_graph.touching
             flown = free_flight_poses(positions[:2], quaternions[:2], free_flight)
-            if free.sum() == (~geometry.static).sum():
-                return (np.where(free[:, None], flown[0], positions[2]).astype(np.float64),
-                        np.where(free[:, None], flown[1], quaternions[2]).astype(np.float64))
+            if np.array_equal(flying, ~geometry.static):  # nothing touches anything
+                return (np.where(flying[:, None], flown[0], positions[2]).astype(np.float64),
+                        np.where(flying[:, None], flown[1], quaternions[2]).astype(np.float64))
         device = next(self.parameters()).device
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
         previous, now = scene_graph.dynamic_vertex_positions[:2]
         next_vertices = self.postprocess(normalized, previous, now)
         next_positions, next_quaternions = rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
-        if free_flight is not None and free.any():
-            next_positions[free], next_quaternions[free] = flown[0][free], flown[1][free]
+        if flying is not None:
+            next_positions[flying], next_quaternions[flying] = flown[0][flying], flown[1][flying]
         return next_positions, next_quaternions
 
 
 def free_flight_poses(positions, quaternions, acceleration):
     """Poses at t+1 of rigid bodies in free flight: constant acceleration of the centre,
     constant angular velocity (PyBullet's rigid bodies have no gyroscopic term here: one
-    step of this matches its free-flight frames to 2e-7 m and 0.005°).
+    step of this matches its free-flight frames to 2.4e-7 m, median; docs/simulator.md).
 
     positions (2, O, 3), quaternions (2, O, 4): frames t−1, t; acceleration (3,) m/step²
     returns (O, 3), (O, 4) float64

@@ -59,11 +59,12 @@ def main():
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
     data = read_trajectories(args.data)
+    free_flight = free_flight_acceleration(data) if args.free_flight else None
     cache = {}
     rows = []
     for key in list(data.trajectories)[: args.n]:
         scene = scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH)
-        rows.append(one_trajectory(simulator, scene, args.steps, free_flight_acceleration(data) if args.free_flight else None))
+        rows.append(one_trajectory(simulator, scene, args.steps, free_flight))
         print(json.dumps(rows[-1]), flush=True)
     drifts = np.concatenate([r["drift_last_50_steps_m"] for r in rows])
     summary = {

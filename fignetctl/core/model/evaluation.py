@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_multiply, quat_normalize
+from fignetctl.core.transforms import quat_angle_deg
 
 PAPER_STEPS = 50
 SECONDS_HORIZON = 2.0
@@ -40,18 +40,19 @@ def stand_still_baseline(scene, num_steps):
 
 
 def constant_velocity_baseline(scene, num_steps, gravity, dt):
-    """Ballistic flight from frames 0–1 that stops at the floor; poses (2 + K, O, ·)."""
+    """Free flight (simulator.free_flight_poses) from frames 0–1 that stops at the floor;
+    poses (2 + K, O, ·)."""
+    from fignetctl.core.model.simulator import free_flight_poses
+
     geometry = scene.geometry
-    velocity = scene.positions[1] - scene.positions[0]
-    spin = quat_multiply(scene.quaternions[1], quat_conjugate(scene.quaternions[0]))
     floor = _floor_height(geometry, scene.positions[1], scene.quaternions[1])
     positions, quaternions = [scene.positions[0], scene.positions[1]], [scene.quaternions[0], scene.quaternions[1]]
     moving = ~geometry.static.copy()
     step_gravity = np.asarray(gravity, np.float64) * dt * dt
     for _ in range(num_steps):
-        velocity = np.where(moving[:, None], velocity + step_gravity, 0.0)
-        position = positions[-1] + velocity
-        quaternion = np.where(moving[:, None], quat_normalize(quat_multiply(spin, quaternions[-1])), quaternions[-1])
+        flown = free_flight_poses(positions[-2:], quaternions[-2:], step_gravity)
+        position = np.where(moving[:, None], flown[0], positions[-1])
+        quaternion = np.where(moving[:, None], flown[1], quaternions[-1])
         landed = moving & (_lowest_z(geometry, position, quaternion) <= floor)
         position[landed] = positions[-1][landed]
         quaternion[landed] = quaternions[-1][landed]

@@ -16,7 +16,7 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, rollout
-from fignetctl.core.model.runs import free_flight_acceleration
+from fignetctl.core.model.runs import free_flight_acceleration, sleep_settings
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
 
@@ -29,9 +29,9 @@ def lowest_dynamic_z(scene, positions, quaternions):
     return np.array([scene.geometry.world_vertices(p, q)[dynamic, 2].min() for p, q in zip(positions, quaternions)])
 
 
-def one_trajectory(simulator, scene, steps, free_flight=None):
+def one_trajectory(simulator, scene, steps, **options):
     try:
-        positions, quaternions = rollout(simulator, scene, steps, free_flight=free_flight)
+        positions, quaternions = rollout(simulator, scene, steps, **options)
         finite = True
     except RolloutError as error:
         positions, quaternions, finite = error.positions, error.quaternions, False
@@ -55,16 +55,19 @@ def main():
     parser.add_argument("-n", type=int, default=10)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--free-flight", action="store_true", help="objects that touch nothing fly exactly")
+    parser.add_argument("--keep-out", action="store_true", help="objects are moved back out of static meshes they pass into")
+    parser.add_argument("--sleep", action="store_true", help="objects that have come to rest sleep")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
     data = read_trajectories(args.data)
-    free_flight = free_flight_acceleration(data) if args.free_flight else None
+    options = {"free_flight": free_flight_acceleration(data) if args.free_flight else None,
+               "keep_out": args.keep_out, "sleep": sleep_settings(data) if args.sleep else None}
     cache = {}
     rows = []
     for key in list(data.trajectories)[: args.n]:
         scene = scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH)
-        rows.append(one_trajectory(simulator, scene, args.steps, free_flight))
+        rows.append(one_trajectory(simulator, scene, args.steps, **options))
         print(json.dumps(rows[-1]), flush=True)
     drifts = np.concatenate([r["drift_last_50_steps_m"] for r in rows])
     summary = {
@@ -75,7 +78,7 @@ def main():
     }
     print(json.dumps(summary))
     with open(args.out, "w") as f:
-        json.dump({"model": args.model, "data": args.data, "steps": args.steps, "free_flight": args.free_flight, "summary": summary, "trajectories": rows}, f, indent=1)
+        json.dump({"model": args.model, "data": args.data, "steps": args.steps, "free_flight": args.free_flight, "keep_out": args.keep_out, "sleep": args.sleep, "summary": summary, "trajectories": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -12,16 +12,17 @@ from fignetctl.commands import options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="Write the metrics json here (otherwise to stdout).")
 @options.sleep_option(default=False)
 @options.free_flight_option(default=False)
+@options.keep_out_option(default=False)
 @options.device_option
 @options.overwrite_option
-def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, device, overwrite):
+def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, keep_out, device, overwrite):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (deg) of the dynamic objects after 50 steps and at
     2 seconds, overall and per shape, for the model and two baselines: objects that keep their
     last velocity under gravity and stop at the floor, and objects that stand still. By default
-    the network moves every object (the paper's figure); --free-flight and --sleep evaluate
-    what `rollout` does by default.
+    the network moves every object (the paper's figure); --free-flight, --keep-out and --sleep
+    evaluate what `rollout` does by default.
 
     \b
     Example:
@@ -36,7 +37,7 @@ def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, dev
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(unit="trajectory", desc="evaluate") as bar:
         metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1), sleep=sleep,
-                                free_flight=free_flight)
+                                free_flight=free_flight, keep_out=keep_out)
     metrics["model"] = str(model_path or "fignet-star-movi-b")
     text = json.dumps(metrics, indent=2)
     if path is None:

@@ -30,6 +30,14 @@ def free_flight_option(default):
     )
 
 
+def keep_out_option(default):
+    return click.option(
+        "--keep-out/--no-keep-out", default=default, show_default=True,
+        help="After each step, move an object that passed into static geometry (the floor, the environment, "
+             "objects asleep) back out along the face's normal: a geometric guard, not the network (docs/simulator.md).",
+    )
+
+
 rerun_option = click.option(
     "--rerun",
     "rerun_path",

@@ -18,10 +18,11 @@ from fignetctl.commands import options
                    "the model was trained on (2.1 m for the bundled ones); the frames come back at dt / sqrt(scale) apart.")
 @options.sleep_option(default=True)
 @options.free_flight_option(default=True)
+@options.keep_out_option(default=True)
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, free_flight, device, rerun_path, overwrite):
+def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, free_flight, keep_out, device, rerun_path, overwrite):
     """Predict --steps frames after the first two frames (t-1, t) of SCENE.
 
     Writes a trajectory file holding the scene's two frames followed by the predicted ones
@@ -47,7 +48,7 @@ def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, f
     with options.progress(total=steps, unit="step", desc="rollout") as bar:
         try:
             result = rollout_file(simulator, scene, trajectory_id, steps, on_step=lambda _: bar.update(1), sim_scale=sim_scale, sleep=sleep,
-                                  free_flight=free_flight)
+                                  free_flight=free_flight, keep_out=keep_out)
             error = None
         except RolloutError as failure:
             result, error = failure.partial_file, failure

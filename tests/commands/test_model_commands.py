@@ -77,6 +77,28 @@ def test_free_flight_makes_a_falling_box_exact_in_rollout_and_evaluate(trained, 
     assert report["metrics"]["model"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3
 
 
+def test_keep_out_stops_a_falling_box_at_the_floor(trained, tmp_path):
+    import trimesh
+
+    from fignetctl.core.transforms import transform_points
+
+    _, data, model = trained  # the box reaches the floor at about step 55
+    lowest = {}
+    for flag in ("--keep-out", "--no-keep-out"):
+        out = tmp_path / f"{flag}.h5"
+        result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "75", "--no-sleep", flag, "-o", str(out)])
+        assert result.exit_code == 0, result.output
+        frames = read_trajectories(out).trajectories["00000"]
+        corners = trimesh.creation.box().vertices
+        lowest[flag] = min(transform_points(corners, 1.0, p, q)[:, 2].min() for p, q in zip(frames.positions[:, 1], frames.quaternions[:, 1]))
+    assert lowest["--keep-out"] >= -1e-3  # float32 poses in the file; the guard's tolerance is 1 mm
+    assert lowest["--no-keep-out"] < -0.05  # a 6-step model does not stop at the floor by itself
+    out = tmp_path / "metrics.json"
+    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--keep-out", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    assert json.loads(out.read_text())["keep_out"] is True
+
+
 @pytest.mark.parametrize("bad", ["garbage", "missing"])
 def test_bad_model_file_is_one_line_error(trained, tmp_path, bad):
     _, data, _ = trained

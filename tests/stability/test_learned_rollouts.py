@@ -57,8 +57,9 @@ def scene_file(path, bodies, statics=()):
 
 
 def roll(model, path, steps, **options):
-    """The model's rollout of a scene file, with free flight as `fignetctl rollout` has it."""
-    result = rollout_file(model, path, None, steps, free_flight=True, **options)
+    """The model's rollout of a scene file, with free flight and the keep-out guard as
+    `fignetctl rollout` has them."""
+    result = rollout_file(model, path, None, steps, free_flight=True, keep_out=True, **options)
     trajectory = result.trajectories["0"]
     assert np.isfinite(trajectory.positions).all() and np.isfinite(trajectory.quaternions).all()
     return trajectory
@@ -93,7 +94,6 @@ def test_a_stack_of_three_boxes_stands(model, tmp_path):
     assert moved < 0.10, f"a box moved {moved:.3f} m"
 
 
-@KNOWN_FAILURE
 def test_a_thin_rod_lands_and_lies_on_the_floor(model, tmp_path):
     """A 2 m x 5 cm rod dropped flat from 0.5 m. Exact answer at rest: centre at z = 2.5 cm.
     Bound: within 10 cm of that after 120 steps, never more than 5 cm into the floor."""
@@ -105,7 +105,6 @@ def test_a_thin_rod_lands_and_lies_on_the_floor(model, tmp_path):
     assert abs(trajectory.positions[-1, 1, 2] - 0.025) < 0.10
 
 
-@KNOWN_FAILURE
 def test_a_fast_box_does_not_tunnel_through_a_thin_plate(model, tmp_path):
     """A 0.5 m box at 8 m/s (0.27 m per frame) onto a static 2 cm plate at z = 1 m: it must end
     above the plate (no tunnelling), its lowest point never more than 10 cm through it."""
@@ -119,7 +118,7 @@ def test_a_fast_box_does_not_tunnel_through_a_thin_plate(model, tmp_path):
     assert trajectory.positions[-1, 2, 2] > 1.0
 
 
-@pytest.mark.parametrize("size", [pytest.param(0.02, marks=KNOWN_FAILURE), 5.0])
+@pytest.mark.parametrize("size", [0.02, 5.0])
 def test_tiny_and_huge_boxes_land_at_their_rest_height(model, tmp_path, size):
     """A cube of 2 cm or 5 m dropped from one size above the floor, simulated at the model's
     size (--sim-scale auto). Exact answer at rest: centre at size / 2. Bound: within 20 % of the
@@ -134,7 +133,6 @@ def test_tiny_and_huge_boxes_land_at_their_rest_height(model, tmp_path, size):
     assert abs(trajectory.positions[-1, 1, 2] - size / 2) < 0.2 * size
 
 
-@KNOWN_FAILURE
 def test_a_1000_step_rollout_stays_finite_and_above_the_floor(model, tmp_path):
     """Three objects thrown together, 1000 steps (33 s). Bound: finite, no object more than
     10 cm into the floor, all within 50 m of the origin."""

@@ -105,13 +105,14 @@ def summarize_errors(records):
     }
 
 
-def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_flight=None):
+def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_flight=None, keep_out=False):
     """name -> (positions, quaternions) for the model (sleeping with SleepSettings `sleep`, free
-    flight with gravity · dt² `free_flight`: rollout.rollout) and both baselines."""
+    flight with gravity · dt² `free_flight`, `keep_out` of static meshes: rollout.rollout) and
+    both baselines."""
     from fignetctl.core.model.rollout import rollout
 
     return {
-        "model": rollout(simulator, scene, num_steps, sleep=sleep, free_flight=free_flight),
+        "model": rollout(simulator, scene, num_steps, sleep=sleep, free_flight=free_flight, keep_out=keep_out),
         "constant_velocity": constant_velocity_baseline(scene, num_steps, gravity, dt),
         "stand_still": stand_still_baseline(scene, num_steps),
     }
@@ -133,7 +134,7 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     return records
 
 
-def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None):
+def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None, keep_out=False):
     """Metrics of the model and the baselines on scenes of one trajectory file.
 
     returns {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}}
@@ -143,7 +144,7 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_fli
         horizons = horizon_steps(data.dt, scene.positions.shape[0])
         if not horizons:
             continue
-        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep, free_flight)
+        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep, free_flight, keep_out)
         mesh_names = data.trajectories[scene.name].mesh_names
         for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
             all_records.setdefault(key, []).extend(records)

@@ -21,6 +21,7 @@ import dataclasses
 
 import numpy as np
 
+from fignetctl.core.model.penetration import push_out_of_static
 from fignetctl.core.transforms import quat_angle_deg
 from fignetctl.errors import FignetError
 
@@ -98,12 +99,14 @@ class Sleepers:
 
 
 def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, sleep: SleepSettings | None = None,
-            free_flight=None):
+            free_flight=None, keep_out=False):
     """Predict `num_steps` frames after frames 0 and 1 of `scene`.
 
     sleep : SleepSettings to let resting objects sleep (module docstring); None: never
     free_flight : gravity · dt² (3,) to move objects that touch nothing in exact free flight
         (LearnedSimulator.step); None: the network moves every dynamic object
+    keep_out : after each step, translate dynamic objects back out of the static meshes
+        (and asleep objects) they passed into (penetration.push_out_of_static)
     returns positions (2 + K, O, 3), quaternions (2 + K, O, 4) float64
     """
     positions = [scene.positions[0], scene.positions[1]]
@@ -124,6 +127,8 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
             history_positions = np.stack([positions[-2], positions[-1], next_static[0]])
             history_quaternions = np.stack([quaternions[-2], quaternions[-1], next_static[1]])
             new_position, new_quaternion = simulator.step(geometry, history_positions, history_quaternions, free_flight=free_flight)
+            if keep_out:
+                new_position, _ = push_out_of_static(geometry, positions[-1], quaternions[-1], new_position, new_quaternion)
         check_step(step, new_position, new_quaternion, positions, quaternions, max_distance)
         positions.append(new_position)
         quaternions.append(new_quaternion)

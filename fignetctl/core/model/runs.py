@@ -34,7 +34,7 @@ def free_flight_acceleration(data):
 
 
 def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False,
-                 free_flight=False) -> TrajectoryFile:
+                 free_flight=False, keep_out=False) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
 
     sim_scale : simulate the scene scaled by this factor (or "auto": to the training objects'
@@ -42,6 +42,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         (fignetctl.core.model.similarity)
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
+    keep_out : objects are moved back out of static meshes they pass into (penetration.py)
     """
     from fignetctl.core.model import similarity
 
@@ -64,7 +65,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
 
     try:
         positions, quaternions = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(data) if sleep else None,
-                                         free_flight=free_flight_acceleration(data) if free_flight else None)
+                                         free_flight=free_flight_acceleration(data) if free_flight else None, keep_out=keep_out)
     except RolloutError as error:
         error.partial_file = result(error.positions, error.quaternions)
         raise
@@ -85,7 +86,7 @@ def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_sc
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False) -> dict:
+def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False, keep_out=False) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
@@ -94,8 +95,8 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
     results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None,
-                              free_flight_acceleration(data) if free_flight else None)
+                              free_flight_acceleration(data) if free_flight else None, keep_out)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),
-            "free_flight": bool(free_flight), "metrics": results}
+            "free_flight": bool(free_flight), "keep_out": bool(keep_out), "metrics": results}

@@ -14,6 +14,9 @@ from fignetctl.commands import options
 @click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
 @click.option("--max-static-edge", type=click.FloatRange(min=0), default=0.0, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m); 0 keeps them whole.")
 @click.option("--max-vertex-offset", type=click.FloatRange(min=0), default=1.0, show_default=True, help="Clamp the face-face features' vertex offsets to this length (m), so huge floor triangles look like near ones; 0: no clamp.")
+@click.option("--speculative/--no-speculative", default=False, show_default=True, help="Also pair faces within the radius plus each object's displacement over the step, so a fast object sees what it hits one step ahead.")
+@click.option("--init-from", type=click.Path(dir_okay=False), default=None, help="Start from this model file's weights and normaliser statistics (fine-tuning) instead of random weights; the settings given here must give the same network.")
+@click.option("--target-keeps-noise/--no-target-keeps-noise", default=True, show_default=True, help="The target next position carries frame t's noise, so the network learns to undo velocity noise only (resting objects stop); --no-...: it undoes position noise too, which makes resting objects oscillate (the runs before this option).")
 @click.option("--loss", type=click.Choice(["mse", "huber"]), default="mse", show_default=True, help="Loss on the normalised accelerations; huber weighs rare contact spikes less.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")
@@ -24,7 +27,7 @@ from fignetctl.commands import options
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, max_vertex_offset, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
+def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, max_vertex_offset, speculative, init_from, target_keeps_noise, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
     Adam with the learning rate decaying exponentially 1e-3 -> 1e-4 over --steps, noise on
@@ -38,16 +41,19 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
       fignetctl make-dataset --preset movi-b -n 200 --seed 1 -o train.h5
       fignetctl train train.h5 -o model.pt --steps 20000
       fignetctl train train.h5 -o model.pt --steps 20000 --resume   # after an interruption
+      fignetctl train train.h5 -o tuned.pt --steps 3000 --init-from model.pt --speculative
     """
     from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for, write_loss_csv
 
     if resume and overwrite:
         raise click.UsageError("--resume continues --output, --overwrite replaces it: give one")
+    if resume and init_from:
+        raise click.UsageError("--resume continues --output, --init-from starts a new run: give one")
     path = options.output_path(output, overwrite or resume)
-    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge or None, max_vertex_offset or None)
-    training_config = TrainingConfig(steps=steps, batch_size=batch_size, loss=loss, checkpoint_every=checkpoint_every, seed=seed)
+    simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge or None, max_vertex_offset or None, speculative)
+    training_config = TrainingConfig(steps=steps, batch_size=batch_size, loss=loss, target_keeps_noise=target_keeps_noise, checkpoint_every=checkpoint_every, seed=seed)
     resume_from = path if resume and path.exists() else None
-    trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from)
+    trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from, init_from)
     with options.progress(total=steps, initial=trainer.step, unit="step", desc="train", disable=trainer.rank != 0 or None) as bar:
         trainer.run(path, on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")),
                     on_checkpoint=lambda: log_csv and trainer.rank == 0 and write_loss_csv(log_csv, trainer.history))

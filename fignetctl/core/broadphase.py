@@ -79,7 +79,7 @@ def _candidate_filter(face_object, face_static, face_i, face_j):
     return (face_object[face_i] != face_object[face_j]) & ~(face_static[face_i] & face_static[face_j])
 
 
-def brute_force_face_pairs(triangles, face_object, radius, object_static=None):
+def brute_force_face_pairs(triangles, face_object, radius, object_static=None, margins=None):
     """Reference for `face_pairs_within_radius`: the exact distance of every eligible pair.
 
     O(F²) work; for tests and benchmarks only.
@@ -88,6 +88,8 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None):
     face_object : (F,) int, the object of each face
     radius : float
     object_static : (O,) bool or None
+    margins : (O,) float or None: a pair of faces of objects a, b of which one is static is
+        kept within radius + margins[a] + margins[b]
     returns : face_i (P,), face_j (P,) int64, face_i < face_j, sorted lexicographically
     """
     triangles = np.asarray(triangles, dtype=np.float64)
@@ -100,7 +102,13 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None):
         rows = np.arange(first_row, min(first_row + rows_per_pass, face_count))
         face_i, face_j = np.repeat(rows, face_count), np.tile(np.arange(face_count), rows.size)
         keep = (face_i < face_j) & _candidate_filter(face_object, face_static, face_i, face_j)
-        face_i, face_j = _pairs_within_exact_distance(triangles, face_i[keep], face_j[keep], radius)
+        face_i, face_j = face_i[keep], face_j[keep]
+        reach = radius
+        if margins is not None:
+            margins = np.asarray(margins, np.float64)
+            with_static = face_static[face_i] | face_static[face_j]
+            reach = radius + np.where(with_static, margins[face_object[face_i]] + margins[face_object[face_j]], 0.0)
+        face_i, face_j = _pairs_within_exact_distance(triangles, face_i, face_j, reach)
         found_i.append(face_i)
         found_j.append(face_j)
     return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))
@@ -220,16 +228,19 @@ def _slack(radius):
     return radius * (1.0 + BOUND_RELATIVE_SLACK) + BOUND_ABSOLUTE_SLACK
 
 
-def _group_pairs_in_reach(groups, group_static, radius):
-    """Group pairs (g1 < g2), not both static, whose boxes grown by radius overlap."""
+def _group_pairs_in_reach(groups, group_static, radius, margins):
+    """(g1, g2, reach) for group pairs (g1 < g2), not both static, whose boxes grown by their
+    reach overlap: radius + margins[g1] + margins[g2] for a pair with a static group, the
+    radius for two moving groups."""
     if len(groups) < 2:
         return []
     lower = np.stack([group.lower for group in groups])
     upper = np.stack([group.upper for group in groups])
     first, second = np.triu_indices(len(groups), k=1)
+    reach = radius + np.where(group_static[first] | group_static[second], margins[first] + margins[second], 0.0)
     box_gap = np.maximum(lower[first] - upper[second], lower[second] - upper[first]).max(axis=-1)
-    keep = (box_gap <= _slack(radius)) & ~(group_static[first] & group_static[second])
-    return list(zip(first[keep].tolist(), second[keep].tolist()))
+    keep = (box_gap <= _slack(reach)) & ~(group_static[first] & group_static[second])
+    return list(zip(first[keep].tolist(), second[keep].tolist(), reach[keep].tolist()))
 
 
 def _group_pair_candidates(group_1, group_2, radius):
@@ -274,8 +285,9 @@ def _exact_group_pairs(group_1, group_2, local_1, local_2, radius):
     return face_low[keep], face_high[keep]
 
 
-def face_pairs_between_groups(groups, group_static, radius, face_count):
-    """All pairs of faces of different groups, not both static, within `radius`.
+def face_pairs_between_groups(groups, group_static, radius, face_count, margins=None):
+    """All pairs of faces of different groups, not both static, within `radius` (plus the two
+    groups' `margins`, when given).
 
     The work is one box test per group pair and, for groups in reach, k-d tree queries and
     bound tests that touch only faces near the other group: a static group far from every
@@ -285,13 +297,17 @@ def face_pairs_between_groups(groups, group_static, radius, face_count):
     group_static : (G,) bool
     radius : float >= 0
     face_count : int, more than every face index (orders the result)
+    margins : (G,) float >= 0 or None: the faces of groups a and b, one of them static, pair
+        within radius + margins[a] + margins[b] (speculative pairs with static geometry,
+        GraphConfig.speculative); two moving groups pair within the radius
     returns : face_i (P,), face_j (P,) int64, face_i < face_j, sorted lexicographically
     """
     group_static = np.asarray(group_static, dtype=bool)
+    margins = np.zeros(len(groups)) if margins is None else np.asarray(margins, np.float64)
     found_i, found_j = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    for first, second in _group_pairs_in_reach(groups, group_static, radius):
-        local_1, local_2 = _group_pair_candidates(groups[first], groups[second], radius)
-        face_i, face_j = _exact_group_pairs(groups[first], groups[second], local_1, local_2, radius)
+    for first, second, reach in _group_pairs_in_reach(groups, group_static, radius, margins):
+        local_1, local_2 = _group_pair_candidates(groups[first], groups[second], reach)
+        face_i, face_j = _exact_group_pairs(groups[first], groups[second], local_1, local_2, reach)
         found_i.append(face_i)
         found_j.append(face_j)
     return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))

@@ -15,7 +15,9 @@ Edge sets (all features relative, so translating the whole scene changes nothing
   receiver in the rest shape (3) and its norm; dynamic objects only.
 - ``node_node`` (8, FIGNet only): the same features along the surface-mesh edges.
 - ``face_face`` (34, hyper-edges, both directions): between faces of different objects, not
-  both static, within the collision radius (found with the broad phase). Features: receiver
+  both static, within the collision radius (found with the broad phase; with
+  `GraphConfig.speculative`, dynamic–static pairs out to the radius plus the step's
+  displacement). Features: receiver
   closest point − sender closest point (3) and its norm, the sender's three vertices relative
   to its closest point (9) and their norms (3), the same for the receiver (12), the sender's
   and receiver's unit normals (6). Each triangle's vertices are ordered canonically — by
@@ -82,6 +84,15 @@ class GraphConfig:
     huge triangles then looks like any other face near the contact, instead of setting the
     normaliser's scale to tens of metres, and without the edges a subdivided floor costs.
     None: not clamped (model files older than this field read as None)."""
+    speculative: bool = False
+    """True: faces of a dynamic and a static object also pair within the radius plus the
+    objects' largest vertex displacement over the step (dynamic: t−1 -> t; static: its given
+    motion t -> t+1), at most the radius itself, so a fast object has a collision edge with
+    the floor in the step before it reaches it, not only after. Without it, an object that
+    covers the 0.2 m radius in one step reaches the floor with no edge. 2 × 0.2 m covers the
+    99th percentile of floor impacts (0.32 m per frame). Pairs of two dynamic objects keep
+    the radius: with the margin too they pair nearly all their faces while both fly fast
+    (3.6× the face–face edges of 10 held-out trajectories on average, 47,758 at most)."""
 
 
 def graph_signature_for(config: GraphConfig) -> GraphSignature:
@@ -263,7 +274,7 @@ class SceneGraph:
     node_positions : (3, N, 3) float64 world positions of the nodes at t−1, t, t+1 (vertices
         for mesh nodes, centres of mass for object nodes)
     touching : (O,) bool, objects with a face in a collision pair (within the radius of
-        another object's face)
+        another object's face, plus the speculative margins when the config has them)
     """
 
     graph: MultiGraph
@@ -307,8 +318,9 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     dynamic_history = np.stack(
         [geometry.world_vertices(p, q, geometry.dynamic_vertices) for p, q in zip(positions, quaternions)]
     )
+    margins = speculative_margins(geometry, dynamic_history, positions, quaternions, config.collision_radius) if config.speculative else None
     pair_i, pair_j = collision_face_pairs_from_poses(
-        geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius
+        geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius, margins
     )
     node_vertex, node_object = select_nodes(geometry, pair_i, pair_j)
     node_history = node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions)
@@ -334,13 +346,32 @@ def collision_face_pairs(geometry, vertices_now, radius):
     return face_pairs_within_radius(triangles, geometry.face_object, radius, geometry.static)
 
 
-def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_now, quaternions_now, radius):
+def speculative_margins(geometry, dynamic_history, positions, quaternions, cap):
+    """(O,) each object's largest vertex displacement in metres, at most the collision
+    radius (GraphConfig.speculative): dynamic objects over t−1 -> t (rows of
+    `dynamic_history` (3, Vd, 3)), static ones over their given motion t -> t+1 (zero, and no
+    work per vertex, while a static object stays put)."""
+    margins = np.zeros(geometry.num_objects)
+    if len(geometry.dynamic_vertices):
+        displacement = np.linalg.norm(dynamic_history[1] - dynamic_history[0], axis=1)
+        owner = geometry.vertex_object[geometry.dynamic_vertices]
+        np.maximum.at(margins, owner, displacement)
+    for o in np.flatnonzero(geometry.static):
+        if _pose_key(positions[1], quaternions[1], o) != _pose_key(positions[2], quaternions[2], o):
+            vertices = geometry.object_vertices[o]
+            moved = geometry.world_vertices(positions[2], quaternions[2], vertices) - geometry.world_vertices(positions[1], quaternions[1], vertices)
+            margins[o] = np.linalg.norm(moved, axis=1).max(initial=0.0)
+    return np.minimum(margins, cap)
+
+
+def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_now, quaternions_now, radius, margins=None):
     """The pairs of `collision_face_pairs`, with static objects' faces taken from the kept
     FaceGroups of geometry.static_face_group: no work per static face that is not near a
     moving one (after the first call at a pose).
 
     dynamic_vertices_now : (Vd, 3) world positions of geometry.dynamic_vertices at t
     positions_now : (O, 3), quaternions_now : (O, 4), the poses at t
+    margins : (O,) or None, added to the radius per object (`speculative_margins`)
     """
     radius = check_radius(radius)
     groups = []
@@ -349,7 +380,7 @@ def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_no
             groups.append(geometry.static_face_group(o, positions_now, quaternions_now))
         else:
             groups.append(FaceGroup(faces, dynamic_vertices_now, geometry.dynamic_face_corners[o]))
-    return face_pairs_between_groups(groups, geometry.static, radius, len(geometry.faces))
+    return face_pairs_between_groups(groups, geometry.static, radius, len(geometry.faces), margins)
 
 
 def select_nodes(geometry, pair_i, pair_j):

@@ -47,6 +47,12 @@ class TrainingConfig:
     """Std (m) of the per-object translation jitter on frame t."""
     noise_rotation_std: float = 0.003
     """Std (rad) of the per-object rotation jitter on frame t."""
+    target_keeps_noise: bool = True
+    """True: the target next vertices carry the jitter of frame t too (as in Sanchez-Gonzalez
+    et al. 2020), so the network learns to undo velocity noise only: a resting object with a
+    small velocity v is told a = −v and stops. False (model files before this field): the
+    target undoes the position noise as well, a = −2v, which a rollout turns into a
+    period-2 oscillation of resting objects (±v every frame, for ever)."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalised accelerations."""
     huber_delta: float = 0.5
@@ -91,10 +97,12 @@ def jitter_frame_t(positions, quaternions, static, generator, config: TrainingCo
 
 def training_example(simulator, scene, frame, generator, config: TrainingConfig):
     """One noisy example: the raw graph and the raw acceleration targets of its dynamic vertices."""
-    positions, quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
-    positions, quaternions = jitter_frame_t(positions, quaternions, scene.geometry.static, generator, config)
+    clean_positions, clean_quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
+    positions, quaternions = jitter_frame_t(clean_positions, clean_quaternions, scene.geometry.static, generator, config)
     scene_graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph)
     previous, now, after = scene_graph.dynamic_vertex_positions
+    if config.target_keeps_noise:
+        after = after + now - scene.geometry.world_vertices(clean_positions[1], clean_quaternions[1], scene.geometry.dynamic_vertices)
     acceleration = torch.from_numpy((after - 2.0 * now + previous).astype(np.float32))
     return scene_graph, acceleration
 
@@ -203,8 +211,9 @@ def _dynamic_rows(scene_graphs) -> torch.Tensor:
     return torch.cat(rows)
 
 
-def make_trainer(dataset_path, simulator_config, training_config, device="cpu", resume_from=None):
-    """A Trainer for a dataset; resumed from a checkpoint's model and training state if given."""
+def make_trainer(dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None):
+    """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
+    or a new run that starts from the weights and normaliser statistics of `init_from`."""
     dataset_path = Path(dataset_path)
     data_hash = file_sha256(dataset_path)
     if resume_from is not None:
@@ -213,11 +222,14 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
             raise FignetError(f"{resume_from}: holds no training state to resume from (an exported model?)")
         if state["data_hash"] != data_hash:
             raise FignetError(f"{resume_from}: was trained on other data than {dataset_path}; start a new run")
-        training_config = TrainingConfig(**{**json.loads(state["training_config"]), "steps": training_config.steps})
+        stored = {"target_keeps_noise": False, **json.loads(state["training_config"])}  # absent: a run before the field
+        training_config = TrainingConfig(**{**stored, "steps": training_config.steps})
     else:
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
+        if init_from is not None:
+            _load_weights(simulator, init_from)
     scenes = scenes_from_file(dataset_path, simulator.config, TRAINING_STATIC_REACH)
     trainer = Trainer(scenes, simulator, training_config, device, data_hash)
     if state is not None:
@@ -225,12 +237,23 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
     return trainer
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0) -> SimulatorConfig:
+def _load_weights(simulator, path) -> None:
+    """Copy a model file's weights and normaliser statistics into `simulator`, or a clear
+    error when its network differs (another architecture or size)."""
+    source = load_checkpoint(path)
+    try:
+        simulator.load_state_dict(source.state_dict())
+    except RuntimeError as error:
+        raise FignetError(f"{path}: its network differs from the one asked for (--model, --size); "
+                          f"give the same ones ({str(error).splitlines()[0]})") from None
+
+
+def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0, speculative=False) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
 
-    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset)
+    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset, speculative=speculative)
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
     return SimulatorConfig(network=PRESETS[size], graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge)

@@ -44,6 +44,25 @@ def test_graph_has_every_node_and_collision_edges_only_near_contacts():
     assert NODE_NODE not in scene_graph.graph.edge_sets
 
 
+def test_speculative_pairs_reach_as_far_as_an_object_moves_in_a_step():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    quaternions[:, 1] = [1, 0, 0, 0]  # the unit box upright: its bottom face at z − 0.5
+    positions[:, 2] = positions[1, 2] + [0.0, 0.0, 5.0]  # the sphere far above, at rest
+    positions[:, 1, 2] = [1.1, 0.8, 0.5]  # the box falls 0.3 m per step; its bottom is 0.3 m up at t
+    plain = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2))
+    speculative = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, speculative=True))
+    assert plain.graph.edge_sets[FACE_FACE].num_edges == 0 and not plain.touching.any()
+    gaps = speculative.graph.edge_sets[FACE_FACE].features.numpy()[:, 3]
+    assert gaps.size and np.allclose(gaps.min(), 0.3) and (gaps <= 0.2 + 0.3 + 1e-6).all()
+    assert list(speculative.touching) == [True, True, False]
+    # an object at rest gets no margin: the same graph as without speculation
+    positions[:, 1, 2] = 0.6
+    a = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2)).graph
+    b = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, speculative=True)).graph
+    assert a.edge_sets[FACE_FACE].num_edges > 0
+    assert torch.equal(a.edge_sets[FACE_FACE].features, b.edge_sets[FACE_FACE].features)
+
+
 def test_far_static_geometry_adds_no_nodes():
     geometry, positions, quaternions = _two_objects_over_floor()
     positions[:, 1:, 2] += 5.0  # lift both objects far above the floor

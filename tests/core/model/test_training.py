@@ -11,7 +11,7 @@ from fignetctl.core.model.scene_graph import GraphConfig
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
 from fignetctl.core.model.training import TrainingConfig, make_trainer
 from fignetctl.core.trajectory import write_trajectories
-from fignetctl.errors import FormatError
+from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
 
 TINY = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, False))
@@ -137,3 +137,49 @@ def test_tiny_model_overfits_with_the_huber_loss(box_file):
     trainer.run()
     losses = [h["loss"] for h in trainer.history]
     assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 10
+
+
+@pytest.mark.parametrize("keeps_noise, factor", [(True, 1.0), (False, 2.0)])
+def test_the_target_undoes_velocity_noise_only_when_it_keeps_the_noise(tmp_path, keeps_noise, factor):
+    """A box at rest (three equal frames) jittered at t: the target is −(the jitter of each
+    vertex) when the target keeps the noise (the object stops), −2× it otherwise."""
+    from fignetctl.core.model.training import training_example
+
+    resting = box_drop_file(frames=3, spin=0.0)
+    for trajectory in resting.trajectories.values():
+        trajectory.positions[:] = trajectory.positions[1]
+    path = write_trajectories(tmp_path / "rest.h5", resting)
+    config = _config(target_keeps_noise=keeps_noise, noise_translation_std=0.01, noise_rotation_std=0.01)
+    trainer = make_trainer(path, TINY, config)
+    scene = trainer.scenes[0]
+    scene_graph, target = training_example(trainer.simulator, scene, 1, torch.Generator().manual_seed(0), config)
+    clean = scene.geometry.world_vertices(scene.positions[1], scene.quaternions[1], scene.geometry.dynamic_vertices)
+    jitter = scene_graph.dynamic_vertex_positions[1] - clean
+    assert np.abs(jitter).max() > 1e-3
+    np.testing.assert_allclose(target.numpy(), -factor * jitter, atol=1e-6)
+
+
+def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
+    first = make_trainer(box_file, TINY, _config())
+    first.run(tmp_path / "first.pt")
+    tuned = make_trainer(box_file, dataclasses.replace(TINY, graph=GraphConfig(0.1, False, speculative=True)), _config(), init_from=tmp_path / "first.pt")
+    assert tuned.step == 0 and tuned.simulator.config.graph.speculative
+    for name, value in first.simulator.state_dict().items():
+        torch.testing.assert_close(tuned.simulator.state_dict()[name], value, rtol=0, atol=0)
+    other = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, True))
+    with pytest.raises(FignetError, match="network differs"):
+        make_trainer(box_file, other, _config(), init_from=tmp_path / "first.pt")
+
+
+def test_a_run_saved_before_target_keeps_noise_resumes_with_its_old_target(box_file, tmp_path):
+    import json
+
+    trainer = make_trainer(box_file, TINY, _config(target_keeps_noise=False))
+    trainer.run(tmp_path / "old.pt", until_step=4)
+    payload = torch.load(tmp_path / "old.pt", weights_only=True)
+    stored = json.loads(payload["training_state"]["training_config"])
+    del stored["target_keeps_noise"]
+    payload["training_state"]["training_config"] = json.dumps(stored)
+    torch.save(payload, tmp_path / "old.pt")
+    resumed = make_trainer(box_file, TINY, _config(), resume_from=tmp_path / "old.pt")
+    assert resumed.config.target_keeps_noise is False

@@ -10,7 +10,9 @@ Sleeping (optional, `SleepSettings`): a dynamic object whose fastest point has m
 than `froude · √(g · size)` for `frames` frames in a row falls asleep. An asleep object is
 simulated as static at its pose (no nodes unless something comes near, no prediction), and
 wakes when an awake dynamic object comes within the collision radius of it (bounding spheres).
-When every dynamic object is asleep a step costs nothing. The threshold is a Froude number, so
+When every dynamic object is asleep a step costs nothing. Objects near each other sleep
+together: one that is still but near an awake object stays awake (without losing its count
+of still frames), so a resting pile falls asleep as soon as all of it is still. The threshold is a Froude number, so
 it means the same at every size and under `--sim-scale`: 9 cm/s for a 2 m object, 2 cm/s
 for a 10 cm one.
 """
@@ -79,11 +81,14 @@ class Sleepers:
         fastest = np.linalg.norm(positions - previous_positions, axis=1) + turn * self.radius  # bound on any point's step
         self.still = np.where(dynamic & (fastest < self.threshold), self.still + 1, 0)
         self.asleep = dynamic & (self.still >= self.settings.frames)
-        awake = np.flatnonzero((dynamic & ~self.asleep) | moving_static)
-        for o in np.flatnonzero(self.asleep):
-            gap = np.linalg.norm(positions[awake] - positions[o], axis=1) - self.radius[awake] - self.radius[o]
-            if np.any(gap < self.collision_radius):
-                self.asleep[o], self.still[o] = False, 0
+        while True:  # an object near an awake one is awake, and so on along chains of neighbours
+            awake = np.flatnonzero((dynamic & ~self.asleep) | moving_static)
+            woken = [o for o in np.flatnonzero(self.asleep)
+                     if np.any(np.linalg.norm(positions[awake] - positions[o], axis=1) - self.radius[awake] - self.radius[o]
+                               < self.collision_radius)]
+            if not woken:
+                break
+            self.asleep[woken] = False  # its still count goes on: it sleeps with its neighbours
 
     def all_asleep(self) -> bool:
         return bool(np.all(self.asleep | self.geometry.static))

@@ -84,6 +84,29 @@ def test_an_asleep_object_is_static_until_something_comes_near_and_then_moves():
     assert positions[-1, 1, 1] > 0.05  # and then pushed
 
 
+class StillSimulator:
+    """Every object stays where it is; records the static flags it is given."""
+
+    config = SimulatorConfig()
+
+    def __init__(self):
+        self.static_seen = []
+
+    def step(self, geometry, positions, quaternions, free_flight=None):
+        self.static_seen.append(geometry.static.copy())
+        return positions[1].copy(), quaternions[1].copy()
+
+
+def test_neighbours_that_come_to_rest_a_frame_apart_fall_asleep_together():
+    """Cube 2 stops one frame after cube 1, 0.1 m from it: each used to wake the other (and
+    restart its count) as it fell asleep, so neither ever slept."""
+    scene = cube_scene([[0, 0, 0.5], [1.1, 0, 0.5]], [[0, 0, 0], [1.0, 0, 0]])
+    simulator = StillSimulator()
+    positions, _ = rollout(simulator, scene, 100, sleep=SleepSettings())
+    assert len(simulator.static_seen) <= SleepSettings().frames + 2
+    np.testing.assert_array_equal(positions[-1], positions[1])
+
+
 def test_sleeping_is_off_unless_asked():
     scene = cube_scene([[0, 0, 0.5]], [[0, 0, 0]])
     simulator = DriftingSimulator()

@@ -71,7 +71,7 @@ checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 
 evaluate-checkpoints: $(DATA)/movi-b-test.h5
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt -o docs/results/fignet-star-movi-b-test.json --overwrite
-	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt --free-flight -o docs/results/fignet-star-movi-b-test-free-flight.json --overwrite
+	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt --free-flight --keep-out -o docs/results/fignet-star-movi-b-test-free-flight-keep-out.json --overwrite
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-movi-b.pt -o docs/results/fignet-movi-b-test.json --overwrite
 
 clean:

@@ -11,7 +11,7 @@ from fignetctl.commands import options
 @click.option("--model", "architecture", type=click.Choice(["fignet-star", "fignet"]), default="fignet-star", show_default=True, help="FIGNet* (no surface-mesh edges) or FIGNet.")
 @click.option("--size", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True, help="Network size preset (paper: latent 128, 10 message-passing steps).")
 @click.option("--collision-radius", type=click.FloatRange(min=0, min_open=True), default=None, help="Face-face edge radius in metres.  [default: 0.2]")
-@click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each mesh to at most this many faces for the graph.")
+@click.option("--max-faces", type=click.IntRange(min=4), default=256, show_default=True, help="Decimate each moving object's mesh to at most this many faces for the graph (static meshes stay whole).")
 @click.option("--max-static-edge", type=click.FloatRange(min=0), default=0.0, show_default=True, help="Subdivide static meshes (the floor) until no edge is longer than this (m); 0 keeps them whole.")
 @click.option("--max-vertex-offset", type=click.FloatRange(min=0), default=1.0, show_default=True, help="Clamp the face-face features' vertex offsets to this length (m), so huge floor triangles look like near ones; 0: no clamp.")
 @click.option("--speculative/--no-speculative", default=False, show_default=True, help="Also pair faces within the radius plus each object's displacement over the step, so a fast object sees what it hits one step ahead.")
@@ -34,7 +34,7 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
     the input history, MSE (or --loss huber) on normalised accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it
     with the same weights an uninterrupted run would reach. Runs data-parallel under
-    torchrun (see docs/train.md).
+    torchrun (see docs/simulator.md).
 
     \b
     Example:

@@ -1,8 +1,11 @@
 """Trajectory files as scenes the simulator reads: concatenated geometry plus poses.
 
-The model sees each mesh decimated (quadric error metrics) to at most `max_faces_per_object`
-faces in the same object frame, so poses are unchanged and FIGNet*'s graph stays small. Static
-meshes are then subdivided until no edge is longer than `max_static_edge` metres, so that a
+The model sees each dynamic object's mesh decimated (quadric error metrics) to at most
+`max_faces_per_object` faces in the same object frame, so poses are unchanged and FIGNet*'s
+graph stays small. Static meshes are not decimated: a static face far from every moving object
+costs nothing (the broad phase keeps static faces cached), and decimating an environment mesh
+tears holes in it (the main job's tray, 1002 faces cut to 256, lost the floor under the ball,
+which fell through). Static meshes are instead subdivided until no edge is longer than `max_static_edge` metres, so that a
 floor is made of faces the size of an object's rather than of two huge triangles (the
 face–face features and their normaliser see vertex offsets). Prepared meshes are made once
 per mesh name (and scale, for static ones).
@@ -67,7 +70,8 @@ def subdivided_mesh(vertices, faces, max_edge):
 
 def prepared_mesh(vertices, faces, static, scale, config):
     """A mesh as the simulator `config` sees it (unscaled, object frame)."""
-    vertices, faces = decimated_mesh(vertices, faces, config.max_faces_per_object)
+    if not static:
+        vertices, faces = decimated_mesh(vertices, faces, config.max_faces_per_object)
     if static and config.max_static_edge is not None:
         vertices, faces = subdivided_mesh(vertices, faces, config.max_static_edge / float(scale))
     return vertices, faces

@@ -371,7 +371,7 @@ def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_no
 
     dynamic_vertices_now : (Vd, 3) world positions of geometry.dynamic_vertices at t
     positions_now : (O, 3), quaternions_now : (O, 4), the poses at t
-    margins : (O,) or None, added to the radius per object (`speculative_margins`)
+    margins : (O,) or None, added to the radius of pairs with a static object (`speculative_margins`)
     """
     radius = check_radius(radius)
     groups = []

@@ -49,7 +49,8 @@ class SimulatorConfig:
     graph: GraphConfig = GraphConfig()
     """Collision radius and FIGNet (surface edges) or FIGNet* (none)."""
     max_faces_per_object: int | None = 256
-    """Meshes are decimated (quadric error) to at most this many faces; None keeps them."""
+    """Dynamic objects' meshes are decimated (quadric error) to at most this many faces; None
+    keeps them. Static meshes are kept whole (scene_data.py)."""
     max_static_edge: float | None = None
     """Static meshes are subdivided until no edge is longer than this (m); None keeps them.
     The face–face features hold each face's vertices relative to its closest point, so one

@@ -45,6 +45,20 @@ def test_static_meshes_are_subdivided_in_metres_and_dynamic_ones_are_not():
     assert (untouched.geometry.face_object == 0).sum() == 2
 
 
+def test_only_dynamic_meshes_are_decimated():
+    """Decimating an environment mesh tears holes in it; static meshes are kept whole."""
+    import trimesh
+
+    from fignetctl.core.trajectory import Mesh
+
+    data = box_drop_file(frames=4, height=0.8)
+    sphere = trimesh.creation.icosphere(subdivisions=3)  # 1280 faces
+    data.meshes["box"] = data.meshes["floor"] = Mesh(np.asarray(sphere.vertices, np.float32), np.asarray(sphere.faces, np.int32))
+    geometry = scene_from_trajectory(data, "00000", SimulatorConfig(max_faces_per_object=100)).geometry
+    assert (geometry.face_object == 0).sum() == 1280  # static: whole
+    assert 0 < (geometry.face_object == 1).sum() <= 100  # dynamic: decimated
+
+
 def test_the_crop_of_static_faces_changes_no_graph_of_the_trajectory():
     data = box_drop_file(frames=40, height=1.2, dt=1 / 30)
     config = SimulatorConfig(max_static_edge=0.5)

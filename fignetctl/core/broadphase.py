@@ -96,6 +96,7 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None, m
     face_object = np.asarray(face_object, dtype=np.int64)
     face_static = _face_static_flags(face_object, object_static)
     face_count = triangles.shape[0]
+    margins = None if margins is None else np.asarray(margins, np.float64)
     rows_per_pass = max(1, BRUTE_FORCE_PAIRS_PER_PASS // max(face_count, 1))
     found_i, found_j = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
     for first_row in range(0, face_count, rows_per_pass):
@@ -105,7 +106,6 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None, m
         face_i, face_j = face_i[keep], face_j[keep]
         reach = radius
         if margins is not None:
-            margins = np.asarray(margins, np.float64)
             with_static = face_static[face_i] | face_static[face_j]
             reach = radius + np.where(with_static, margins[face_object[face_i]] + margins[face_object[face_j]], 0.0)
         face_i, face_j = _pairs_within_exact_distance(triangles, face_i, face_j, reach)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from fignetctl.core.broadphase import BOUND_RELATIVE_SLACK
+from fignetctl.core.model.scene_graph import unit_normals
 
 TOLERANCE = 1e-3
 """Metres a vertex may be behind a face at t and still count as in front of it (rounding,
@@ -76,11 +77,11 @@ def deepest_crossing(groups, start, end, tolerance):
         if vertex.size == 0:
             continue
         triangles = group.triangles(local)
-        normals, areas = _normals(triangles)
+        normals = unit_normals(triangles)  # outward (counter-clockwise seen from outside); zero if degenerate
         a = triangles[:, 0]
         s0 = np.einsum("pj,pj->p", normals, start[vertex] - a)
         s1 = np.einsum("pj,pj->p", normals, end[vertex] - a)
-        crossing = (areas > 0) & (s0 >= -tolerance) & (s1 < 0)
+        crossing = normals.any(axis=1) & (s0 >= -tolerance) & (s1 < 0)
         fraction = np.clip(np.divide(s0, s0 - s1, out=np.zeros_like(s0), where=crossing), 0.0, 1.0)
         point = start[vertex] + fraction[:, None] * (end[vertex] - start[vertex])
         crossing &= _inside(triangles, normals, point)
@@ -105,14 +106,6 @@ def _candidate_pairs(group, start, end, tolerance):
         found_vertex.append(np.repeat(np.arange(len(start)), counts))
         found_local.append(rows[np.concatenate([np.asarray(h, np.int64) for h in hits])])
     return np.concatenate(found_vertex), np.concatenate(found_local)
-
-
-def _normals(triangles):
-    """(P, 3, 3) -> unit outward normals (P, 3) (counter-clockwise seen from outside) and areas."""
-    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-    length = np.linalg.norm(cross, axis=1)
-    normals = np.divide(cross, length[:, None], out=np.zeros_like(cross), where=length[:, None] > 0)
-    return normals, 0.5 * length
 
 
 def _inside(triangles, normals, points):

@@ -6,6 +6,7 @@ import click
 
 from fignetctl.commands import options
 from fignetctl.commands.extract_mesh import _floats
+from fignetctl.core.scene_building import ACTIVE, PASSIVE
 
 
 @click.command("build-graph")
@@ -18,11 +19,11 @@ from fignetctl.commands.extract_mesh import _floats
 @click.option("--start", default=None, callback=_floats(3), metavar="X,Y,Z", help="Start position of the object's origin instead of --drop-height.")
 @click.option("--velocity", default=None, callback=_floats(3), metavar="VX,VY,VZ", help="Start velocity (world units / s) instead of Δz per frame.")
 @click.option("--duplicate", is_flag=True, help="Simulate a copy at the start; the original stays in place as a static object.")
-@click.option("--active-mass", type=click.FloatRange(min=0, min_open=True), default=1e-3, show_default=True)
-@click.option("--active-friction", type=click.FloatRange(min=0), default=0.5, show_default=True)
-@click.option("--active-restitution", type=click.FloatRange(min=0), default=0.5, show_default=True)
-@click.option("--passive-friction", type=click.FloatRange(min=0), default=0.5, show_default=True)
-@click.option("--passive-restitution", type=click.FloatRange(min=0), default=0.3, show_default=True)
+@click.option("--active-mass", type=click.FloatRange(min=0, min_open=True), default=ACTIVE.mass, show_default=True)
+@click.option("--active-friction", type=click.FloatRange(min=0), default=ACTIVE.friction, show_default=True)
+@click.option("--active-restitution", type=click.FloatRange(min=0), default=ACTIVE.restitution, show_default=True)
+@click.option("--passive-friction", type=click.FloatRange(min=0), default=PASSIVE.friction, show_default=True)
+@click.option("--passive-restitution", type=click.FloatRange(min=0), default=PASSIVE.restitution, show_default=True)
 @click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=1 / 30, show_default="1/30, the bundled models' frame time", help="Seconds between frames.")
 @options.overwrite_option
 def build_graph(volume_path, object_path, environment_path, output, drop_height, delta_z, start, velocity, duplicate,
@@ -30,9 +31,11 @@ def build_graph(volume_path, object_path, environment_path, output, drop_height,
     """Build the 2-frame scene (t-1, t) that `fignetctl rollout` simulates, from the meshes and
     volume.npz of `extract-mesh` (paper, "Building the Graph").
 
-    The object is active (dynamic), the environment passive (static); default properties are
-    the paper's (active mass 1e-3, friction 0.5, restitution 0.5; passive friction 0.5,
-    restitution 0.3). The history is a drop: the object --drop-height above its rest position,
+    The object is active (dynamic), the environment passive (static). Default properties are
+    those the bundled models were trained on: active mass 1, friction 0.8, restitution 0.7
+    (the paper's FIGNet row), passive friction 0.3, restitution 0.5 (MOVi's floor); the
+    paper's FIGNet* row (active 1e-3, 0.5, 0.5; passive 0.5, 0.3) is outside them, and
+    `rollout` warns about any value its model was not trained on. The history is a drop: the object --drop-height above its rest position,
     and Δz higher one frame earlier; or --start and --velocity. See docs/build-graph.md.
 
     \b

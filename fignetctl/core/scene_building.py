@@ -22,15 +22,20 @@ GRAVITY = (0.0, 0.0, -10.0)
 
 @dataclasses.dataclass(frozen=True)
 class Properties:
-    """Static properties of one object (paper table; FIGNet* defaults)."""
+    """Static properties of one object."""
 
     mass: float
     friction: float
     restitution: float
 
 
-ACTIVE = Properties(mass=1e-3, friction=0.5, restitution=0.5)
-PASSIVE = Properties(mass=0.0, friction=0.5, restitution=0.3)
+# Within what the bundled models were trained on (MOVi-B: moving objects friction 0.4/0.8,
+# restitution 0.3/0.7, mass 0.2-59; the floor 0.3, 0.5): the active object is the paper's
+# FIGNet row (mass 1, MOVi's rubber), the passive one MOVi's floor. The paper's FIGNet*
+# row (active 1e-3, 0.5, 0.5; passive 0.5, 0.3) lies outside it, and the bundled FIGNet*
+# lets a resting object slide on it (docs/build-graph.md, "Physical properties").
+ACTIVE = Properties(mass=1.0, friction=0.8, restitution=0.7)
+PASSIVE = Properties(mass=0.0, friction=0.3, restitution=0.5)
 
 
 def drop_history(origin, drop_height=0.1, delta_z=0.01, start=None, velocity=None, dt=DT):
@@ -54,7 +59,8 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
     object_mesh : (vertices (V, 3) relative to the object's origin, faces (F, 3))
     environment_mesh : (vertices (V, 3) relative to environment_origin, faces (F, 3))
     origin : (3,) the object's position at rest; positions : (2, 3) its frames t-1 and t
-    duplicate : the moving object is a copy; the original stays at `origin`, static
+    duplicate : the moving object is a copy; the original stays at `origin`, static, with the
+        passive properties (it is part of the environment now)
     """
     meshes = {"environment": _mesh(*environment_mesh, "environment"), "object": _mesh(*object_mesh, "object")}
     names = ["environment", "object"]
@@ -64,7 +70,7 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
         names.insert(1, "object")
         frames.insert(1, np.broadcast_to(np.asarray(origin, np.float64), (2, 3)))
         static.insert(1, True)
-        props.insert(1, Properties(0.0, active.friction, active.restitution))
+        props.insert(1, passive)
     count = len(names)
     quaternions = np.zeros((2, count, 4), np.float32)
     quaternions[..., 0] = 1.0

@@ -34,7 +34,7 @@ def test_default_drop(extracted):
     assert trajectory.num_frames == 2 and list(trajectory.mesh_names) == ["environment", "object"]
     assert list(trajectory.static) == [True, False]
     assert np.allclose(trajectory.positions[:, 1], [[0.1, -0.2, 0.27], [0.1, -0.2, 0.26]])
-    assert np.allclose(trajectory.mass, [0.0, 1e-3]) and np.allclose(trajectory.restitution, [0.3, 0.5])
+    assert np.allclose(trajectory.mass, [0.0, 1.0]) and np.allclose(trajectory.restitution, [0.5, 0.7])
     assert np.allclose(trajectory.positions[:, 0], 0.0)
     assert len(data.meshes["object"].faces) == 12
 
@@ -48,6 +48,23 @@ def test_start_velocity_duplicate_and_properties(extracted):
     assert np.allclose(trajectory.positions[:, 1], [0.1, -0.2, 0.06])  # the original stays
     assert np.allclose(trajectory.positions[:, 2], [[0.0, 0, 0.5], [0.3, 0, 0.5]])
     assert trajectory.mass[2] == 2 and trajectory.friction[0] == pytest.approx(0.9)
+    assert trajectory.friction[1] == pytest.approx(0.9)  # the static original is environment now
+
+
+@pytest.mark.parametrize("name", ["fignet-star-movi-b", "fignet-movi-b"])
+def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracted, name):
+    from fignetctl.core.model.properties import outside_ranges
+    from fignetctl.core.model.runs import load_model
+
+    assert run("build-graph", extracted / "volume.npz", "--duplicate", "-o", extracted / "scene.h5").exit_code == 0
+    (trajectory,) = read_trajectories(extracted / "scene.h5").trajectories.values()
+    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
+    ranges = load_model(name).trained_properties
+    assert ranges["static"] and ranges["dynamic"]
+    assert outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties) == []
+    properties[0, 1], properties[2, 0] = 0.5, 1e-3  # the paper's FIGNet* passive friction, active mass
+    found = outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties)
+    assert len(found) == 2 and "'environment' has friction 0.5" in found[0] and "'object' has mass 0.001" in found[1]
 
 
 def test_errors(extracted):

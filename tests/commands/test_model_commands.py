@@ -124,3 +124,32 @@ def test_train_logs_loss_to_rerun(trained, tmp_path):
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(tmp_path / "m.pt"), "--size", "tiny", "--steps", "2", "--rerun", str(rrd)])
     assert result.exit_code == 0, result.output
     assert rrd.stat().st_size > 100
+
+
+def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside_them(trained, tmp_path, caplog):
+    import dataclasses
+
+    from fignetctl.core.model.checkpoint import export_checkpoint
+    from fignetctl.core.model.runs import load_model
+    from fignetctl.errors import FormatError
+
+    _, data, model = trained
+    truth = read_trajectories(data).trajectories["00000"]
+    ranges = load_model(str(model)).trained_properties
+    assert ranges["dynamic"]["friction"] == pytest.approx([truth.friction[1]] * 2)
+    assert ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2) and "mass" not in ranges["static"]
+    scene = box_drop_file(frames=2)
+    slippery = dataclasses.replace(scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32))
+    write_trajectories(tmp_path / "slippery.h5", dataclasses.replace(scene, trajectories={"00000": slippery}))
+    for path, warned in ((data, False), (tmp_path / "slippery.h5", True)):
+        caplog.clear()
+        result = CliRunner().invoke(cli, ["rollout", str(path), "--model", str(model), "--steps", "2", "-o", str(tmp_path / "r.h5"), "--overwrite"])
+        assert result.exit_code == 0, result.output
+        messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert bool(messages) == warned, messages
+    assert "dynamic object 'box' has friction 5, outside the" in messages[0] and "extrapolates" in messages[0]
+    # export keeps the ranges; a run saved before them gets them from its own training file only
+    assert load_model(str(export_checkpoint(model, tmp_path / "shipped.pt"))).trained_properties == ranges
+    assert load_model(str(export_checkpoint(model, tmp_path / "again.pt", trained_on=data))).trained_properties == ranges
+    with pytest.raises(FormatError, match="is not the file"):
+        export_checkpoint(model, tmp_path / "other.pt", trained_on=tmp_path / "slippery.h5")

@@ -4,8 +4,8 @@ Layout of the torch file (loaded with `weights_only=True`, so nothing is unpickl
 tensors and plain values):
 
     format="fignetctl.model", format_version=1, fignetctl_version, simulator_config (json),
-    model (state_dict), training_state (optional: step, optimizer, random states, history,
-    training_config json, data_hash)
+    model (state_dict), trained_properties (json, optional: properties.py), training_state
+    (optional: step, optimizer, random states, history, training_config json, data_hash)
 
 Writes are atomic. A file that is not a fignetctl model, a newer format, or weights that do
 not fit the stored settings raise FormatError with what to do.
@@ -17,11 +17,13 @@ import math
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
+from fignetctl.core.model.properties import ranges_from_json
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -72,6 +74,7 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
             raise ValueError(f"collision_radius {radius} is not a positive number")
         simulator = LearnedSimulator(config)
         simulator.load_state_dict(payload["model"])
+        simulator.trained_properties = ranges_from_json(payload.get("trained_properties"))
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, RecursionError) as error:
         raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
     _check_finite_state(simulator, path)
@@ -91,15 +94,27 @@ def _check_finite_state(simulator, path) -> None:
             raise FormatError(f"{path}: {name!r} holds NaN or inf; the model cannot be used")
 
 
-def export_checkpoint(source, destination) -> Path:
+def export_checkpoint(source, destination, trained_on=None) -> Path:
     """Copy a model file without its optimiser and random state (a few MB, for shipping).
 
     What the run was (step, training settings, data hash, loss history) stays, under
-    `provenance`, so the shipped file still says how it was made.
+    `provenance`, so the shipped file still says how it was made. `trained_on`, the training
+    file of a run saved before models stored `trained_properties`, adds them (its hash must
+    be the run's).
     """
+    from fignetctl.core.model.training import file_sha256
+    from fignetctl.core.model.properties import property_ranges, ranges_to_json
+    from fignetctl.core.trajectory import read_trajectories
+
     payload = read_checkpoint_payload(source)
     state = payload.pop("training_state", None) or {}
     payload["provenance"] = {key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state}
+    if trained_on is not None:
+        if file_sha256(trained_on) != state.get("data_hash"):
+            raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")
+        trajectories = read_trajectories(trained_on).trajectories.values()
+        ranges = property_ranges((np.stack([t.mass, t.friction, t.restitution], axis=1), t.static) for t in trajectories)
+        payload["trained_properties"] = ranges_to_json(ranges)
     with atomic_path(destination) as tmp:
         torch.save(payload, tmp)
     return Path(destination)

@@ -1,10 +1,15 @@
-"""`python -m fignetctl.core.model.export SOURCE DESTINATION`: ship a model without training state."""
+"""`python -m fignetctl.core.model.export SOURCE DESTINATION [--trained-on DATA]`: ship a model
+without training state (`--trained-on`: the training file of a run saved before models stored
+the properties they were trained on)."""
 
-import sys
+import argparse
 
 from fignetctl.core.model.checkpoint import export_checkpoint
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
-        sys.exit("usage: python -m fignetctl.core.model.export SOURCE.pt DESTINATION.pt")
-    print(export_checkpoint(sys.argv[1], sys.argv[2]))
+    parser = argparse.ArgumentParser(prog="python -m fignetctl.core.model.export", description=__doc__)
+    parser.add_argument("source")
+    parser.add_argument("destination")
+    parser.add_argument("--trained-on", default=None)
+    args = parser.parse_args()
+    print(export_checkpoint(args.source, args.destination, args.trained_on))

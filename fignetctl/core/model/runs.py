@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
+from fignetctl.core.model.properties import outside_ranges
 from fignetctl.core.model.rollout import RolloutError, SleepSettings, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
+
+log = logging.getLogger(__name__)
 
 
 def load_model(path=None, device="cpu"):
@@ -56,6 +60,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         simulated, history_positions, history_quaternions = similarity.scaled_scene(data, key, scale)
         dt = data.dt / scale**0.5
     scene = scene_from_trajectory(simulated, key, simulator.config)
+    warn_untrained_properties(simulator, data.trajectories[key])
 
     def result(positions, quaternions):
         if scale != 1.0:
@@ -70,6 +75,13 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         error.partial_file = result(error.positions, error.quaternions)
         raise
     return result(positions, quaternions)
+
+
+def warn_untrained_properties(simulator, trajectory) -> None:
+    """Log a warning for each property of the trajectory's objects that the model never saw."""
+    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
+    for sentence in outside_ranges(getattr(simulator, "trained_properties", None), trajectory.mesh_names, trajectory.static, properties):
+        log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)
 
 
 def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_scale=1.0) -> TrajectoryFile:

@@ -87,6 +87,7 @@ class LearnedSimulator(nn.Module):
             {name: Normalizer(size, std_epsilon=STD_EPSILON) for name, size in signature.edge_feature_sizes.items()}
         )
         self.acceleration_normalizer = Normalizer(3, std_epsilon=STD_EPSILON)
+        self.trained_properties = None  # ranges of the training data's properties (properties.py)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
         """Raw graph -> normalised graph (statistics updated when `accumulate`)."""

@@ -23,6 +23,7 @@ import torch
 
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
+from fignetctl.core.model.properties import property_ranges, ranges_to_json
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import sample_rigid_pose_noise
 from fignetctl.core.model.scene_graph import build_scene_graph
@@ -112,6 +113,7 @@ class Trainer:
 
     def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash=""):
         self.rank, device = distributed.join_process_group(device)
+        simulator.trained_properties = property_ranges((s.geometry.properties, s.geometry.static) for s in scenes)
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash = device, data_hash
@@ -189,7 +191,8 @@ class Trainer:
         """Rank 0 writes the checkpoint atomically; the others wait for it."""
         state = self.state()
         if self.rank == 0:
-            save_checkpoint(path, self.simulator, training_state=state)
+            save_checkpoint(path, self.simulator, training_state=state,
+                            extra={"trained_properties": ranges_to_json(self.simulator.trained_properties)})
         distributed.barrier()
 
 

@@ -1,0 +1,64 @@
+"""The physical properties a model was trained on, and a check of a scene against them.
+
+The network reads mass, friction and restitution as node features, so it only knows the
+values its training data held. MOVi-B has two materials for moving objects (friction 0.4 or
+0.8, restitution 0.3 or 0.7) and one for the floor (0.3, 0.5): a scene outside those ranges
+is extrapolation. Measured on the bundled FIGNet* (docs/simulator.md, "Physical properties"):
+a resting cube with the floor's friction 0.5 and restitution 0.3 slid 20 cm in 30 steps, with
+MOVi-B's values 1 cm.
+
+`trained_properties` is stored in the model file by `fignetctl train` (and kept by export):
+
+    {"dynamic": {"mass": [lo, hi], "friction": [lo, hi], "restitution": [lo, hi]},
+     "static": {"friction": [lo, hi], "restitution": [lo, hi]}}
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+NAMES = ("mass", "friction", "restitution")
+RELATIVE_SLACK = 1e-3  # float32 rounding of the stored values
+
+
+def property_ranges(properties_and_static) -> dict:
+    """The ranges of an iterable of ((O, 3) mass/friction/restitution, (O,) static) pairs."""
+    rows = {False: [], True: []}
+    for properties, static in properties_and_static:
+        properties, static = np.asarray(properties, np.float64), np.asarray(static, bool)
+        rows[False].append(properties[~static])
+        rows[True].append(properties[static])
+    ranges = {}
+    for kind, is_static in (("dynamic", False), ("static", True)):
+        values = np.concatenate(rows[is_static]) if rows[is_static] else np.empty((0, 3))
+        if len(values):
+            names = NAMES[1:] if is_static else NAMES  # a static object's mass is always 0
+            ranges[kind] = {name: [float(values[:, NAMES.index(name)].min()), float(values[:, NAMES.index(name)].max())] for name in names}
+    return ranges
+
+
+def ranges_to_json(ranges) -> str:
+    return json.dumps(ranges, sort_keys=True)
+
+
+def ranges_from_json(text):
+    """The ranges of a model file's `trained_properties`, or None (a file from before it)."""
+    return None if text is None else json.loads(text)
+
+
+def outside_ranges(ranges, names, static, properties) -> list[str]:
+    """One sentence per object property the model was not trained on; [] when ranges is None."""
+    if not ranges:
+        return []
+    found = []
+    for name, is_static, values in zip(names, np.asarray(static, bool), np.asarray(properties, np.float64)):
+        kind = "static" if is_static else "dynamic"
+        for property_name, (low, high) in ranges.get(kind, {}).items():
+            value = float(values[NAMES.index(property_name)])
+            slack = RELATIVE_SLACK * max(abs(low), abs(high), 1e-12)
+            if not low - slack <= value <= high + slack:
+                span = f"{low:g}" if low == high else f"{low:g}-{high:g}"
+                found.append(f"{kind} object {name!r} has {property_name} {value:g}, outside the {span} the model was trained on")
+    return found

@@ -64,7 +64,11 @@ def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracte
     assert outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties) == []
     properties[0, 1], properties[2, 0] = 0.5, 1e-3  # the paper's FIGNet* passive friction, active mass
     found = outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties)
-    assert len(found) == 2 and "'environment' has friction 0.5" in found[0] and "'object' has mass 0.001" in found[1]
+    assert len(found) == 2 and "'environment' has friction 0.5 and restitution 0.5, not a material" in found[0]
+    assert "'object' has mass 0.001, outside the" in found[1]
+    properties[0, 1], properties[2] = 0.3, [1.0, 0.5, 0.5]  # each value between MOVi's two materials
+    (found,) = outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties)
+    assert "(0.4, 0.3), (0.8, 0.7)" in found
 
 
 def test_errors(extracted):

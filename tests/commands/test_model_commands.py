@@ -138,6 +138,7 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
     ranges = load_model(str(model)).trained_properties
     assert ranges["dynamic"]["friction"] == pytest.approx([truth.friction[1]] * 2)
     assert ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2) and "mass" not in ranges["static"]
+    assert ranges["dynamic"]["materials"] == [pytest.approx([truth.friction[1], truth.restitution[1]])]
     scene = box_drop_file(frames=2)
     slippery = dataclasses.replace(scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32))
     write_trajectories(tmp_path / "slippery.h5", dataclasses.replace(scene, trajectories={"00000": slippery}))
@@ -147,7 +148,7 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
         assert result.exit_code == 0, result.output
         messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
         assert bool(messages) == warned, messages
-    assert "dynamic object 'box' has friction 5, outside the" in messages[0] and "extrapolates" in messages[0]
+    assert "dynamic object 'box' has friction 5 and restitution" in messages[0] and "extrapolates" in messages[0]
     # export keeps the ranges; a run saved before them gets them from its own training file only
     assert load_model(str(export_checkpoint(model, tmp_path / "shipped.pt"))).trained_properties == ranges
     assert load_model(str(export_checkpoint(model, tmp_path / "again.pt", trained_on=data))).trained_properties == ranges

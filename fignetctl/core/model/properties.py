@@ -1,16 +1,22 @@
 """The physical properties a model was trained on, and a check of a scene against them.
 
 The network reads mass, friction and restitution as node features, so it only knows the
-values its training data held. MOVi-B has two materials for moving objects (friction 0.4 or
-0.8, restitution 0.3 or 0.7) and one for the floor (0.3, 0.5): a scene outside those ranges
-is extrapolation. Measured on the bundled FIGNet* (docs/simulator.md, "Physical properties"):
-a resting cube with the floor's friction 0.5 and restitution 0.3 slid 20 cm in 30 steps, with
-MOVi-B's values 1 cm.
+values its training data held. MOVi-B has two materials for moving objects (friction 0.4 and
+restitution 0.3, or 0.8 and 0.7) and one for the floor (0.3, 0.5): anything else is
+extrapolation, even a pair whose values each lie between the materials' (friction 0.5 with
+restitution 0.5). Measured on the bundled FIGNet* (docs/simulator.md, "Physical properties"):
+a resting cube of friction 0.5 and restitution 0.5 slid 13 cm in 30 steps; of MOVi-B's rubber,
+7 mm.
 
 `trained_properties` is stored in the model file by `fignetctl train` (and kept by export):
 
-    {"dynamic": {"mass": [lo, hi], "friction": [lo, hi], "restitution": [lo, hi]},
-     "static": {"friction": [lo, hi], "restitution": [lo, hi]}}
+    {"dynamic": {"mass": [lo, hi], "friction": [lo, hi], "restitution": [lo, hi],
+                 "materials": [[friction, restitution], ...]},
+     "static": {"friction": [lo, hi], "restitution": [lo, hi], "materials": [...]}}
+
+`materials` lists the distinct (friction, restitution) pairs when there are at most
+MAX_MATERIALS of them (data with discrete materials, like Kubric's); a scene's pair must then
+be within MATERIAL_TOLERANCE of one of them. Otherwise each value is checked against its range.
 """
 
 from __future__ import annotations
@@ -21,10 +27,13 @@ import numpy as np
 
 NAMES = ("mass", "friction", "restitution")
 RELATIVE_SLACK = 1e-3  # float32 rounding of the stored values
+MAX_MATERIALS = 16
+MATERIAL_TOLERANCE = 0.02
 
 
 def property_ranges(properties_and_static) -> dict:
-    """The ranges of an iterable of ((O, 3) mass/friction/restitution, (O,) static) pairs."""
+    """The ranges (and materials) of an iterable of ((O, 3) mass/friction/restitution, (O,)
+    static) pairs."""
     rows = {False: [], True: []}
     for properties, static in properties_and_static:
         properties, static = np.asarray(properties, np.float64), np.asarray(static, bool)
@@ -36,6 +45,9 @@ def property_ranges(properties_and_static) -> dict:
         if len(values):
             names = NAMES[1:] if is_static else NAMES  # a static object's mass is always 0
             ranges[kind] = {name: [float(values[:, NAMES.index(name)].min()), float(values[:, NAMES.index(name)].max())] for name in names}
+            materials = np.unique(values[:, 1:].astype(np.float32), axis=0)
+            if len(materials) <= MAX_MATERIALS:
+                ranges[kind]["materials"] = [[round(float(f), 6), round(float(r), 6)] for f, r in materials]
     return ranges
 
 
@@ -55,10 +67,19 @@ def outside_ranges(ranges, names, static, properties) -> list[str]:
     found = []
     for name, is_static, values in zip(names, np.asarray(static, bool), np.asarray(properties, np.float64)):
         kind = "static" if is_static else "dynamic"
-        for property_name, (low, high) in ranges.get(kind, {}).items():
+        known = ranges.get(kind, {})
+        materials = known.get("materials")
+        for property_name in ("mass",) if materials else NAMES:
+            if property_name not in known:
+                continue
+            low, high = known[property_name]
             value = float(values[NAMES.index(property_name)])
             slack = RELATIVE_SLACK * max(abs(low), abs(high), 1e-12)
             if not low - slack <= value <= high + slack:
                 span = f"{low:g}" if low == high else f"{low:g}-{high:g}"
                 found.append(f"{kind} object {name!r} has {property_name} {value:g}, outside the {span} the model was trained on")
+        if materials and not (np.abs(np.asarray(materials) - values[1:]).max(axis=1) <= MATERIAL_TOLERANCE).any():
+            seen = ", ".join(f"({f:g}, {r:g})" for f, r in materials)
+            found.append(f"{kind} object {name!r} has friction {values[1]:g} and restitution {values[2]:g}, "
+                         f"not a material the model was trained on (friction, restitution: {seen})")
     return found

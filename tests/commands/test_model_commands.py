@@ -139,18 +139,20 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
     assert ranges["dynamic"]["friction"] == pytest.approx([truth.friction[1]] * 2)
     assert ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2) and "mass" not in ranges["static"]
     assert ranges["dynamic"]["materials"] == [pytest.approx([truth.friction[1], truth.restitution[1]])]
-    scene = box_drop_file(frames=2)
+    scene = box_drop_file(frames=80, height=5.0)
     slippery = dataclasses.replace(scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32))
     write_trajectories(tmp_path / "slippery.h5", dataclasses.replace(scene, trajectories={"00000": slippery}))
     for path, warned in ((data, False), (tmp_path / "slippery.h5", True)):
-        caplog.clear()
-        result = CliRunner().invoke(cli, ["rollout", str(path), "--model", str(model), "--steps", "2", "-o", str(tmp_path / "r.h5"), "--overwrite"])
-        assert result.exit_code == 0, result.output
-        messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
-        assert bool(messages) == warned, messages
+        for command in (["rollout", "--steps", "2", "-o", tmp_path / "r.h5"], ["evaluate", "-o", tmp_path / "m.json"]):
+            caplog.clear()
+            result = CliRunner().invoke(cli, [command[0], str(path), "--model", str(model), *map(str, command[1:]), "--overwrite"])
+            assert result.exit_code == 0, result.output
+            messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+            assert len(messages) == warned, messages
     assert "dynamic object 'box' has friction 5 and restitution" in messages[0] and "extrapolates" in messages[0]
     # export keeps the ranges; a run saved before them gets them from its own training file only
     assert load_model(str(export_checkpoint(model, tmp_path / "shipped.pt"))).trained_properties == ranges
-    assert load_model(str(export_checkpoint(model, tmp_path / "again.pt", trained_on=data))).trained_properties == ranges
+    again = export_checkpoint(tmp_path / "shipped.pt", tmp_path / "again.pt", trained_on=data)  # an exported file keeps its provenance
+    assert load_model(str(again)).trained_properties == ranges
     with pytest.raises(FormatError, match="is not the file"):
         export_checkpoint(model, tmp_path / "other.pt", trained_on=tmp_path / "slippery.h5")

@@ -102,15 +102,16 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     file of a run saved before models stored `trained_properties`, adds them (its hash must
     be the run's).
     """
-    from fignetctl.core.model.training import file_sha256
     from fignetctl.core.model.properties import property_ranges, ranges_to_json
+    from fignetctl.core.model.training import file_sha256
     from fignetctl.core.trajectory import read_trajectories
 
     payload = read_checkpoint_payload(source)
-    state = payload.pop("training_state", None) or {}
-    payload["provenance"] = {key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state}
+    state = payload.pop("training_state", None)
+    if state:  # an exported file keeps the provenance it has
+        payload["provenance"] = {key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state}
     if trained_on is not None:
-        if file_sha256(trained_on) != state.get("data_hash"):
+        if file_sha256(trained_on) != payload.get("provenance", {}).get("data_hash"):
             raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")
         trajectories = read_trajectories(trained_on).trajectories.values()
         ranges = property_ranges((np.stack([t.mass, t.friction, t.restitution], axis=1), t.static) for t in trajectories)

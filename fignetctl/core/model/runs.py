@@ -60,7 +60,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         simulated, history_positions, history_quaternions = similarity.scaled_scene(data, key, scale)
         dt = data.dt / scale**0.5
     scene = scene_from_trajectory(simulated, key, simulator.config)
-    warn_untrained_properties(simulator, data.trajectories[key])
+    warn_untrained_properties(simulator, [data.trajectories[key]])
 
     def result(positions, quaternions):
         if scale != 1.0:
@@ -77,10 +77,15 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
     return result(positions, quaternions)
 
 
-def warn_untrained_properties(simulator, trajectory) -> None:
-    """Log a warning for each property of the trajectory's objects that the model never saw."""
-    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
-    for sentence in outside_ranges(getattr(simulator, "trained_properties", None), trajectory.mesh_names, trajectory.static, properties):
+def warn_untrained_properties(simulator, trajectories) -> None:
+    """Log a warning, once each, for every property of the trajectories' objects that the model
+    never saw."""
+    found = {}
+    for trajectory in trajectories:
+        properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
+        for sentence in outside_ranges(getattr(simulator, "trained_properties", None), trajectory.mesh_names, trajectory.static, properties):
+            found.setdefault(sentence)
+    for sentence in found:
         log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)
 
 
@@ -104,6 +109,7 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
 
     data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
+    warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
     results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None,

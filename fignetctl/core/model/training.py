@@ -23,9 +23,9 @@ import torch
 
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
-from fignetctl.core.model.properties import property_ranges, ranges_to_json
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import sample_rigid_pose_noise
+from fignetctl.core.model.properties import property_ranges, ranges_to_json
 from fignetctl.core.model.scene_graph import build_scene_graph
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig

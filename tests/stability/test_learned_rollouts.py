@@ -12,6 +12,7 @@ import pytest
 import trimesh
 
 from fignetctl.core.model.runs import load_model, rollout_file
+from fignetctl.core.scene_building import ACTIVE, PASSIVE
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
 
 pytestmark = pytest.mark.stability
@@ -29,7 +30,8 @@ def model():
 
 def scene_file(path, bodies, statics=()):
     """A 2-frame scene: `bodies` are (mesh, position, velocity) of moving objects (identity
-    rotation, MOVi-B's rubber); `statics` are (mesh, position) besides the floor (MOVi-B's floor)."""
+    rotation); `statics` are (mesh, position) besides the floor. Properties: build-graph's
+    defaults (MOVi-B's rubber moving, MOVi-B's floor static)."""
     meshes = {"floor": FLOOR}
     names, positions, velocities, static = ["floor"], [[0, 0, -0.5]], [[0, 0, 0]], [True]
     for index, (mesh, position) in enumerate(statics):
@@ -45,8 +47,9 @@ def scene_file(path, bodies, statics=()):
         mesh_names=np.array(names, dtype=object), scales=np.ones(count, np.float32),
         positions=np.stack([before, now]).astype(np.float32),
         quaternions=np.tile(np.array([1, 0, 0, 0], np.float32), (2, count, 1)),
-        static=np.array(static), mass=np.where(static, 0.0, 1.0).astype(np.float32),
-        friction=np.where(static, 0.3, 0.8).astype(np.float32), restitution=np.where(static, 0.5, 0.7).astype(np.float32),
+        static=np.array(static), mass=np.where(static, 0.0, ACTIVE.mass).astype(np.float32),
+        friction=np.where(static, PASSIVE.friction, ACTIVE.friction).astype(np.float32),
+        restitution=np.where(static, PASSIVE.restitution, ACTIVE.restitution).astype(np.float32),
     )
     file_meshes = {name: Mesh(np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32)) for name, m in meshes.items()}
     write_trajectories(path, TrajectoryFile(DT, np.array([0, 0, -9.81]), file_meshes, {"0": trajectory}))

@@ -35,8 +35,9 @@ def build_graph(volume_path, object_path, environment_path, output, drop_height,
     those the bundled models were trained on: active mass 1, friction 0.8, restitution 0.7
     (the paper's FIGNet row), passive friction 0.3, restitution 0.5 (MOVi's floor); the
     paper's FIGNet* row (active 1e-3, 0.5, 0.5; passive 0.5, 0.3) is outside them, and
-    `rollout` warns about any value its model was not trained on. The history is a drop: the object --drop-height above its rest position,
-    and Δz higher one frame earlier; or --start and --velocity. See docs/build-graph.md.
+    `rollout` warns about any value its model was not trained on. The history is a drop: the
+    object --drop-height above its rest position, and Δz higher one frame earlier; or --start
+    and --velocity. See docs/build-graph.md.
 
     \b
     Example:

@@ -70,6 +70,11 @@ class Trajectory:
     def num_objects(self) -> int:
         return int(self.positions.shape[1])
 
+    @property
+    def properties(self) -> np.ndarray:
+        """(O, 3) mass, friction, restitution per object."""
+        return np.stack([self.mass, self.friction, self.restitution], axis=1)
+
     def frames(self, start: int, stop: int) -> "Trajectory":
         """The same objects restricted to frames [start, stop)."""
         return dataclasses.replace(

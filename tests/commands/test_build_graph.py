@@ -58,7 +58,7 @@ def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracte
 
     assert run("build-graph", extracted / "volume.npz", "--duplicate", "-o", extracted / "scene.h5").exit_code == 0
     (trajectory,) = read_trajectories(extracted / "scene.h5").trajectories.values()
-    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
+    properties = trajectory.properties
     ranges = load_model(name).trained_properties
     assert ranges["static"] and ranges["dynamic"]
     assert outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties) == []

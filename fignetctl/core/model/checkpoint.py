@@ -17,7 +17,6 @@ import math
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from fignetctl import __version__
@@ -114,7 +113,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
         if file_sha256(trained_on) != payload.get("provenance", {}).get("data_hash"):
             raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")
         trajectories = read_trajectories(trained_on).trajectories.values()
-        ranges = property_ranges((np.stack([t.mass, t.friction, t.restitution], axis=1), t.static) for t in trajectories)
+        ranges = property_ranges((t.properties, t.static) for t in trajectories)
         payload["trained_properties"] = ranges_to_json(ranges)
     with atomic_path(destination) as tmp:
         torch.save(payload, tmp)

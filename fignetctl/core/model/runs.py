@@ -80,10 +80,9 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
 def warn_untrained_properties(simulator, trajectories) -> None:
     """Log a warning, once each, for every property of the trajectories' objects that the model
     never saw."""
-    found = {}
+    ranges, found = getattr(simulator, "trained_properties", None), {}
     for trajectory in trajectories:
-        properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
-        for sentence in outside_ranges(getattr(simulator, "trained_properties", None), trajectory.mesh_names, trajectory.static, properties):
+        for sentence in outside_ranges(ranges, trajectory.mesh_names, trajectory.static, trajectory.properties):
             found.setdefault(sentence)
     for sentence in found:
         log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)

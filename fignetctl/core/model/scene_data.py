@@ -97,8 +97,7 @@ def scene_from_trajectory(data: TrajectoryFile, trajectory_id, config, mesh_cach
     static = np.asarray(trajectory.static, bool)
     if static_reach is not None:
         meshes = _crop_static_meshes(meshes, trajectory.scales, static, positions, quaternions, static_reach)
-    properties = np.stack([trajectory.mass, trajectory.friction, trajectory.restitution], axis=1)
-    geometry = scene_geometry(meshes, trajectory.scales, static, properties)
+    geometry = scene_geometry(meshes, trajectory.scales, static, trajectory.properties)
     return Scene(str(trajectory_id), geometry, positions, quaternions)
 
 

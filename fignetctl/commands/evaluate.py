@@ -20,7 +20,10 @@ def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, kee
 
     Translation RMSE (m) and rotation error (deg) of the dynamic objects after 50 steps and at
     2 seconds, overall and per shape, for the model and two baselines: objects that keep their
-    last velocity under gravity and stop at the floor, and objects that stand still. By default
+    last velocity under gravity and stop at the floor, and objects that stand still. The json
+    also has the errors at every step ("curves") and the model against each baseline on the
+    same objects ("comparison": RMSE ratio and rotation difference with 95 % bootstrap
+    intervals over trajectories, and the share of objects the model places closer). By default
     the network moves every object (the paper's figure); --free-flight, --keep-out and --sleep
     evaluate what `rollout` does by default.
 

@@ -20,6 +20,7 @@ from fignetctl.commands import options
 @click.option("--loss", type=click.Choice(["mse", "huber"]), default="mse", show_default=True, help="Loss on the normalised accelerations; huber weighs rare contact spikes less.")
 @click.option("--steps", type=click.IntRange(min=1), default=20000, show_default=True, help="Total optimiser steps (a resumed run continues to this).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step.")
+@click.option("--learning-rate", type=(click.FloatRange(min=0, min_open=True), click.FloatRange(min=0, min_open=True)), default=(1e-3, 1e-4), show_default=True, metavar="INITIAL FINAL", help="Adam's learning rate decays exponentially from INITIAL to FINAL over --steps (the paper: 1e-3 1e-4); a fine-tuning may start lower.")
 @click.option("--checkpoint-every", type=click.IntRange(min=1), default=500, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue the run saved in --output exactly where it stopped.")
 @click.option("--log-csv", type=click.Path(dir_okay=False), default=None, help="Also write step, loss, seconds to this CSV (at every checkpoint).")
@@ -27,10 +28,10 @@ from fignetctl.commands import options
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, max_vertex_offset, speculative, init_from, target_keeps_noise, loss, steps, batch_size, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
+def train(dataset, output, architecture, size, collision_radius, max_faces, max_static_edge, max_vertex_offset, speculative, init_from, target_keeps_noise, loss, steps, batch_size, learning_rate, checkpoint_every, resume, log_csv, seed, device, rerun_path, overwrite):
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
-    Adam with the learning rate decaying exponentially 1e-3 -> 1e-4 over --steps, noise on
+    Adam with the learning rate decaying exponentially (--learning-rate, 1e-3 -> 1e-4) over --steps, noise on
     the input history, MSE (or --loss huber) on normalised accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it
     with the same weights an uninterrupted run would reach. Runs data-parallel under
@@ -41,7 +42,7 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
       fignetctl make-dataset --preset movi-b -n 200 --seed 1 -o train.h5
       fignetctl train train.h5 -o model.pt --steps 20000
       fignetctl train train.h5 -o model.pt --steps 20000 --resume   # after an interruption
-      fignetctl train train.h5 -o tuned.pt --steps 3000 --init-from model.pt --speculative
+      fignetctl train train.h5 -o tuned.pt --steps 3000 --init-from model.pt --learning-rate 2e-4 2e-5
     """
     from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for, write_loss_csv
 
@@ -51,7 +52,7 @@ def train(dataset, output, architecture, size, collision_radius, max_faces, max_
         raise click.UsageError("--resume continues --output, --init-from starts a new run: give one")
     path = options.output_path(output, overwrite or resume)
     simulator_config = simulator_config_for(architecture, size, collision_radius, max_faces, max_static_edge or None, max_vertex_offset or None, speculative)
-    training_config = TrainingConfig(steps=steps, batch_size=batch_size, loss=loss, target_keeps_noise=target_keeps_noise, checkpoint_every=checkpoint_every, seed=seed)
+    training_config = TrainingConfig(steps=steps, batch_size=batch_size, learning_rate_initial=learning_rate[0], learning_rate_final=learning_rate[1], loss=loss, target_keeps_noise=target_keeps_noise, checkpoint_every=checkpoint_every, seed=seed)
     resume_from = path if resume and path.exists() else None
     trainer = make_trainer(dataset, simulator_config, training_config, options.resolve_device(device), resume_from, init_from)
     with options.progress(total=steps, initial=trainer.step, unit="step", desc="train", disable=trainer.rank != 0 or None) as bar:

@@ -26,6 +26,22 @@ def test_train_writes_model_and_loss_log(trained):
     assert rows[0] == "step,loss,seconds" and len(rows) == 7
 
 
+def test_train_learning_rate_option_sets_the_schedule(trained, tmp_path):
+    from fignetctl.core.model.checkpoint import read_checkpoint_payload
+
+    _, data, model = trained
+    out = tmp_path / "tuned.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--init-from", str(model), "--learning-rate", "2e-4", "2e-5"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    state = read_checkpoint_payload(out)["training_state"]
+    config = json.loads(state["training_config"])
+    assert (config["learning_rate_initial"], config["learning_rate_final"]) == (2e-4, 2e-5)
+    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(2e-4 * 0.1**0.5)  # the second of two steps: halfway down
+    result = CliRunner().invoke(cli, args[:-3] + ["--learning-rate", "0", "1e-4", "--overwrite"])
+    assert result.exit_code == 2 and "--learning-rate" in result.output
+
+
 def test_train_refuses_existing_output_and_resumes_on_request(trained):
     folder, data, model = trained
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])
@@ -51,12 +67,22 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     out = tmp_path / "metrics.json"
     result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "-o", str(out)])
     assert result.exit_code == 0, result.output
-    metrics = json.loads(out.read_text())["metrics"]
+    report = json.loads(out.read_text())
+    metrics = report["metrics"]
     assert set(metrics) == {"model", "constant_velocity", "stand_still"}
     falling = metrics["stand_still"]["50_steps"]["all"]["translation_rmse_m"]
     assert falling == pytest.approx(0.5 * 10 * ((51 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
     assert metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free fall is ballistic
     assert "box" in metrics["model"]["50_steps"]["per_shape"]
+    curve = report["curves"]["stand_still"]  # every step k: the box has fallen g((k+1)² − 1)dt²/2
+    steps = np.array(curve["step"])
+    np.testing.assert_array_equal(steps, np.arange(1, 51))  # 80 frames at 60 fps: 2 s is beyond them
+    np.testing.assert_allclose(curve["translation_rmse_m"], 0.5 * 10 * ((steps + 1) ** 2 - 1) / 60**2, rtol=1e-3)
+    assert report["curves"]["model"]["translation_rmse_m"][49] == metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
+    versus_stand_still = report["comparison"]["stand_still"]["50_steps"]
+    model_error = metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
+    assert versus_stand_still["translation_rmse_ratio"] == pytest.approx(model_error / falling)
+    assert versus_stand_still["objects"] == 1 and versus_stand_still["trajectories"] == 1
 
 
 def test_free_flight_makes_a_falling_box_exact_in_rollout_and_evaluate(trained, tmp_path):

@@ -5,6 +5,11 @@ Rotation error: mean over dynamic objects of the angle of q_gt⁻¹ · q_pred (d
 Horizons: 50 rollout steps (the paper) and a fixed 2 seconds (so datasets at different frame
 rates compare); a trajectory too short for a horizon is left out of that horizon.
 
+Beside the metrics: the same errors at every rollout step (`curves`), and the model against
+each baseline on the same objects (`comparison`): the ratio of translation RMSEs and the
+difference of mean rotation errors, each with a 95 % bootstrap interval over trajectories
+(resampled together for both methods), and the share of objects the model places closer.
+
 Baselines (what learning buys):
 - `stand_still`: every object keeps its pose of frame 1;
 - `constant_velocity`: every object keeps its last velocity and spin, gains gravity, and stops
@@ -20,6 +25,8 @@ from fignetctl.core.transforms import quat_angle_deg
 
 PAPER_STEPS = 50
 SECONDS_HORIZON = 2.0
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 0
 
 
 def translation_errors(predicted, truth):
@@ -119,11 +126,15 @@ def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_f
 
 
 def scene_error_records(scene, mesh_names, rollouts, horizons):
-    """(method, horizon, shape) -> list of error records of this scene's dynamic objects."""
+    """(method, horizon, shape) -> list of error records of this scene's dynamic objects;
+    (method, "step k", "all") for every step k the rollouts cover, for the curves."""
     dynamic = ~scene.geometry.static
     shapes = np.asarray(mesh_names)[dynamic]
     records = {}
     for method, (positions, quaternions) in rollouts.items():
+        for step in range(1, positions.shape[0] - 1):
+            translation, rotation = errors_at(scene, positions, quaternions, step)
+            records.setdefault((method, step, "all"), []).append({"translation": translation, "rotation": rotation})
         for horizon, steps in horizons.items():
             translation, rotation = errors_at(scene, positions, quaternions, steps)
             records.setdefault((method, horizon, "all"), []).append({"translation": translation, "rotation": rotation})
@@ -137,7 +148,9 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
 def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None, keep_out=False):
     """Metrics of the model and the baselines on scenes of one trajectory file.
 
-    returns {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}}
+    returns {"metrics": {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}},
+             "curves": {method: per-step lists}, "comparison": {baseline: {horizon: compare(...)}}},
+    or {} when no scene covers a horizon.
     """
     all_records = {}
     for scene in scenes:
@@ -150,7 +163,13 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_fli
             all_records.setdefault(key, []).extend(records)
         if on_scene is not None:
             on_scene(scene)
-    return nest_metrics(all_records)
+    if not all_records:
+        return {}
+    metrics = nest_metrics({key: records for key, records in all_records.items() if not isinstance(key[1], int)})
+    return {"metrics": metrics, "curves": error_curves(all_records), "comparison": {
+        baseline: {horizon: compare(all_records[("model", horizon, "all")], all_records[(baseline, horizon, "all")])
+                   for horizon in metrics["model"]}
+        for baseline in metrics if baseline != "model"}}
 
 
 def nest_metrics(all_records):
@@ -163,3 +182,43 @@ def nest_metrics(all_records):
         else:
             entry["per_shape"][shape] = summarize_errors(records)
     return result
+
+
+def error_curves(all_records):
+    """{(method, step k, "all"): records} -> {method: {"step": [...], "translation_rmse_m": [...],
+    "rotation_error_deg": [...], "objects": [...]}} over every step some scene reaches."""
+    curves = {}
+    for (method, step, _), records in all_records.items():
+        if isinstance(step, int):
+            curves.setdefault(method, {})[step] = summarize_errors(records)
+    keys = ("translation_rmse_m", "rotation_error_deg", "objects")
+    return {method: {"step": sorted(by_step), **{key: [by_step[k][key] for k in sorted(by_step)] for key in keys}}
+            for method, by_step in curves.items()}
+
+
+def compare(model_records, baseline_records, resamples=BOOTSTRAP_RESAMPLES, seed=BOOTSTRAP_SEED):
+    """The model against a baseline on the same trajectories (records in the same order).
+
+    Translation: RMSE ratio model / baseline; rotation: mean error difference model − baseline
+    (degrees); each with a 95 % percentile bootstrap interval over trajectories, which are
+    resampled together for both methods. `objects_closer`: share of objects with a smaller
+    translation error than the baseline's."""
+    if len(model_records) != len(baseline_records):
+        raise ValueError("the model and the baseline were not evaluated on the same trajectories")
+    squared = np.array([[np.sum(m["translation"] ** 2), np.sum(b["translation"] ** 2)] for m, b in zip(model_records, baseline_records)])
+    angles = np.array([[np.sum(m["rotation"]), np.sum(b["rotation"])] for m, b in zip(model_records, baseline_records)])
+    counts = np.array([m["translation"].size for m in model_records], np.float64)
+    picks = np.random.default_rng(seed).integers(0, len(counts), size=(resamples, len(counts)))
+    ratios = np.sqrt(squared[picks, 0].sum(1) / np.maximum(squared[picks, 1].sum(1), 1e-300))
+    differences = (angles[picks, 0].sum(1) - angles[picks, 1].sum(1)) / np.maximum(counts[picks].sum(1), 1)
+    closer = np.concatenate([m["translation"] < b["translation"] for m, b in zip(model_records, baseline_records)])
+    return {
+        "translation_rmse_ratio": float(np.sqrt(squared[:, 0].sum() / max(squared[:, 1].sum(), 1e-300))),
+        "translation_rmse_ratio_95": [float(v) for v in np.percentile(ratios, [2.5, 97.5])],
+        "rotation_error_difference_deg": float((angles[:, 0].sum() - angles[:, 1].sum()) / max(counts.sum(), 1)),
+        "rotation_error_difference_deg_95": [float(v) for v in np.percentile(differences, [2.5, 97.5])],
+        "objects_closer": float(closer.mean()) if closer.size else None,
+        "objects": int(closer.size),
+        "trajectories": len(counts),
+        "resamples": resamples,
+    }

@@ -116,4 +116,4 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),
-            "free_flight": bool(free_flight), "keep_out": bool(keep_out), "metrics": results}
+            "free_flight": bool(free_flight), "keep_out": bool(keep_out), **results}

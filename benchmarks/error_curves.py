@@ -1,0 +1,76 @@
+"""Held-out error against rollout time, for the models and the baselines of `evaluate` files.
+
+Plots the "curves" of one or more `fignetctl evaluate` json files (translation RMSE and mean
+rotation error of the dynamic objects at every rollout step) and prints the "comparison" of
+each model with the baselines (RMSE ratio with its 95 % bootstrap interval over trajectories).
+
+    python benchmarks/error_curves.py docs/results/fignet-star-movi-b-test.json=FIGNet* \
+        docs/results/fignet-movi-b-test.json=FIGNet --plot docs/images/error-curves-movi-b.png
+
+The baselines are drawn once, from the first file (every file must hold the same data).
+"""
+
+import argparse
+import json
+import os
+
+BASELINES = {"constant_velocity": "constant velocity", "stand_still": "stand still"}
+
+
+def read(spec):
+    path, _, label = spec.partition("=")
+    with open(path) as f:
+        report = json.load(f)
+    if "curves" not in report:
+        raise SystemExit(f"{path}: no per-step curves; evaluate it again with this version of fignetctl")
+    return label or path, report
+
+
+def comparison_lines(label, report):
+    for baseline, horizons in report["comparison"].items():
+        for horizon, c in horizons.items():
+            low, high = c["translation_rmse_ratio_95"]
+            rlow, rhigh = c["rotation_error_difference_deg_95"]
+            yield (f"{label} vs {BASELINES.get(baseline, baseline)}, {horizon}: translation RMSE ×{c['translation_rmse_ratio']:.3f} "
+                   f"[{low:.3f}, {high:.3f}], rotation {c['rotation_error_difference_deg']:+.1f}° [{rlow:+.1f}, {rhigh:+.1f}], "
+                   f"closer for {100 * c['objects_closer']:.0f} % of {c['objects']} objects ({c['trajectories']} trajectories)")
+
+
+def plot(reports, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 2, figsize=(11, 3.8))
+    first = reports[0][1]
+    dt = first["dt"]
+    lines = [(label, report["curves"]["model"], "-") for label, report in reports]
+    lines += [(name, first["curves"][key], ":") for key, name in BASELINES.items() if key in first["curves"]]
+    for axis, key, ylabel in ((axes[0], "translation_rmse_m", "translation RMSE (m)"), (axes[1], "rotation_error_deg", "rotation error (deg)")):
+        for label, curve, style in lines:
+            axis.plot([k * dt for k in curve["step"]], curve[key], style, label=label)
+        axis.axvline(50 * dt, color="grey", lw=0.8)
+        axis.set(xlabel="rollout time (s); grey: 50 steps", ylabel=ylabel)
+    axes[0].legend(fontsize=8)
+    figure.suptitle(f"{first['trajectories']} held-out trajectories of {os.path.basename(first['data'])}", fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("reports", nargs="+", metavar="FILE[=LABEL]", help="evaluate json files, each with an optional label")
+    parser.add_argument("--plot", help="PNG to write")
+    args = parser.parse_args()
+    reports = [read(spec) for spec in args.reports]
+    for label, report in reports:
+        for line in comparison_lines(label, report):
+            print(line)
+    if args.plot:
+        plot(reports, args.plot)
+        print(args.plot)
+
+
+if __name__ == "__main__":
+    main()

@@ -127,7 +127,7 @@ def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_f
 
 def scene_error_records(scene, mesh_names, rollouts, horizons):
     """(method, horizon, shape) -> list of error records of this scene's dynamic objects;
-    (method, "step k", "all") for every step k the rollouts cover, for the curves."""
+    (method, k, "all") with an int k for every step the rollouts cover, for the curves."""
     dynamic = ~scene.geometry.static
     shapes = np.asarray(mesh_names)[dynamic]
     records = {}

@@ -44,7 +44,7 @@ bench: setup
 # (docs/simulator.md has their figures). Hours on a 2-core CPU; resumable (re-run the target).
 # Three stages: 10,000 steps with the target of the first runs (it undoes position noise too);
 # 1500 steps from those weights with the target that keeps the noise; 3500 steps from those at
-# twice the batch and a tenth of the learning rate. The bundled FIGNet is still the second
+# twice the batch and a fifth of the learning rate. The bundled FIGNet is still the second
 # stage (its third was not finished when FIGNet*'s was bundled), so `checkpoints` exports that.
 # `train`'s defaults keep static meshes whole and clamp face-face offsets to 1 m; the model file
 # records the physical properties of its training data (rollout warns outside them).

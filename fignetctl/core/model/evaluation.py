@@ -132,11 +132,11 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     shapes = np.asarray(mesh_names)[dynamic]
     records = {}
     for method, (positions, quaternions) in rollouts.items():
-        for step in range(1, positions.shape[0] - 1):
-            translation, rotation = errors_at(scene, positions, quaternions, step)
+        per_step = {step: errors_at(scene, positions, quaternions, step) for step in range(1, positions.shape[0] - 1)}
+        for step, (translation, rotation) in per_step.items():
             records.setdefault((method, step, "all"), []).append({"translation": translation, "rotation": rotation})
         for horizon, steps in horizons.items():
-            translation, rotation = errors_at(scene, positions, quaternions, steps)
+            translation, rotation = per_step[steps]  # the rollouts reach the longest horizon
             records.setdefault((method, horizon, "all"), []).append({"translation": translation, "rotation": rotation})
             for shape in np.unique(shapes):
                 keep = shapes == shape

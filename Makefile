@@ -44,8 +44,7 @@ bench: setup
 # (docs/simulator.md has their figures). Hours on a 2-core CPU; resumable (re-run the target).
 # Three stages: 10,000 steps with the target of the first runs (it undoes position noise too);
 # 1500 steps from those weights with the target that keeps the noise; 3500 steps from those at
-# twice the batch and a fifth of the learning rate. The bundled FIGNet is still the second
-# stage (its third was not finished when FIGNet*'s was bundled), so `checkpoints` exports that.
+# twice the batch and a fifth of the learning rate.
 # `train`'s defaults keep static meshes whole and clamp face-face offsets to 1 m; the model file
 # records the physical properties of its training data (rollout warns outside them).
 DATA    ?= data
@@ -72,9 +71,9 @@ $(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt
 
 .PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt
 
-checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b-tuned.pt
+checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt
-	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-movi-b-tuned.pt fignetctl/assets/models/fignet-movi-b.pt
+	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-movi-b.pt fignetctl/assets/models/fignet-movi-b.pt
 
 evaluate-checkpoints: $(DATA)/movi-b-test.h5
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt -o docs/results/fignet-star-movi-b-test.json --overwrite

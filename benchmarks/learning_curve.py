@@ -7,7 +7,7 @@ seconds add up over the whole run. Snapshots (copies of a stage's model file tak
 trained) and each stage's final file are evaluated on held-out trajectories.
 
     python benchmarks/learning_curve.py \
-        --stage data/v3/fignet-star-movi-b.pt 'data/v3/snapshots/step-*.pt' \
+        --stage data/v3/fignet-star-movi-b.pt 'data/v3/snapshots/step-*000.pt' \
         --stage data/v7/fignet-star-movi-b.pt \
         --stage data/v9/fignet-star-movi-b.pt data/v9/snap.pt \
         --test data/movi-b-test.h5 -n 8 \

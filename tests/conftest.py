@@ -28,6 +28,10 @@ def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
     quaternions[:, 0, 0] = 1.0
     quaternions[:, 1, 0] = np.cos(half_angles)
     quaternions[:, 1, 1:] = np.sin(half_angles)[:, None] * axis
+    velocities = np.zeros((frames, 2, 3), np.float32)
+    velocities[:, 1, 2] = -10.0 * times
+    angular_velocities = np.zeros((frames, 2, 3), np.float32)
+    angular_velocities[:, 1] = spin * axis
     trajectory = Trajectory(
         mesh_names=np.array(["floor", "box"], dtype=object),
         scales=np.array([1.0, 1.0], np.float32),
@@ -37,6 +41,8 @@ def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
         mass=np.array([0.0, 1.0], np.float32),
         friction=np.array([0.3, 0.5], np.float32),
         restitution=np.array([0.5, 0.5], np.float32),
+        velocities=velocities,
+        angular_velocities=angular_velocities,
     )
     meshes = {
         "floor": Mesh(floor_vertices, floor_faces),

@@ -18,21 +18,9 @@ import numpy as np
 
 from fignetctl.core.trajectory import Trajectory, TrajectoryFile
 from fignetctl.core.transforms import lowest_vertex_heights as object_lowest_heights
-from fignetctl.core.transforms import quat_multiply, quat_to_matrix, transform_points
+from fignetctl.core.transforms import quat_multiply, quat_to_matrix, quat_to_rotation_vector, transform_points
 
 ENERGY_TERMS = ("kinetic_translational", "kinetic_rotational", "potential", "total")
-
-
-def _quat_to_rotation_vector(quaternions: np.ndarray) -> np.ndarray:
-    """(..., 4) w x y z -> (..., 3) axis · angle, angle in [0, π] (shortest rotation)."""
-    q = np.asarray(quaternions, np.float64)
-    q = np.where(q[..., :1] < 0, -q, q)
-    w, xyz = q[..., 0], q[..., 1:]
-    sine = np.linalg.norm(xyz, axis=-1)
-    angle = 2.0 * np.arctan2(sine, w)
-    # angle / sin(angle/2) -> 2 as the angle -> 0
-    factor = np.where(sine > 1e-12, angle / np.maximum(sine, 1e-12), 2.0)
-    return xyz * factor[..., None]
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -107,7 +95,7 @@ def angular_velocities(quaternions: np.ndarray, dt: float) -> np.ndarray:
     inverse_before = quaternions[before] * np.array([1.0, -1.0, -1.0, -1.0])
     delta = quat_multiply(quaternions[after], inverse_before)
     span = ((after - before) * dt)[:, None, None]
-    return _quat_to_rotation_vector(delta) / span
+    return quat_to_rotation_vector(delta) / span
 
 
 def body_inertias(data: TrajectoryFile, trajectory: Trajectory) -> np.ndarray:

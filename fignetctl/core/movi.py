@@ -618,6 +618,8 @@ class MoviSimulator:
             mass=np.array([0.0] + [mass for mass, _ in properties], np.float32),
             friction=np.array([config.floor_friction] + [s.material.friction for s in specs], np.float32),
             restitution=np.array([config.floor_restitution] + [s.material.restitution for s in specs], np.float32),
+            velocities=record.velocities.astype(np.float32),
+            angular_velocities=record.angular_velocities.astype(np.float32),
             extras=_physical_extras(record, np.stack(inertia)),
         )
 
@@ -629,10 +631,8 @@ def object_mass_properties(asset: PreparedAsset, spec: ObjectSpec) -> tuple:
 
 
 def _physical_extras(record: SimulationRecord, inertia: np.ndarray) -> dict:
-    """Extra per-trajectory datasets: velocities, final speeds and inertia tensors."""
+    """Extra per-trajectory datasets: final speeds and inertia tensors."""
     return {
-        "velocities": record.velocities.astype(np.float32),
-        "angular_velocities": record.angular_velocities.astype(np.float32),
         "final_speed": np.linalg.norm(record.velocities[-1], axis=-1).astype(np.float32),
         "final_angular_speed": np.linalg.norm(record.angular_velocities[-1], axis=-1).astype(np.float32),
         "inertia": inertia.astype(np.float32),

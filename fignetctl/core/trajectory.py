@@ -1,10 +1,15 @@
-"""The trajectory file, format `fignetctl.trajectories`, version 1 (see docs/formats.md).
+"""The trajectory file, format `fignetctl.trajectories`, version 2 (see docs/formats.md).
 
 One HDF5 file holds meshes (object frame, origin at the centre of mass) and any number of
 trajectories of objects that use them. The same format stores a dataset, a scene
 (2 frames: t-1 and t) and a rollout. Units: metres, seconds, kilograms; z is up.
 
 World vertex = R(q) · (scale · v) + p, with q = (w, x, y, z) object-to-world.
+
+Version 2 adds the optional per-frame `velocities` and `angular_velocities` (T, O, 3), the
+instantaneous linear (m/s) and angular (rad/s) velocity of each object in the world frame.
+Version 1 files are read as before; they have no velocities (`Trajectory.velocities` is None)
+and whoever needs them estimates them from the frames (`estimated_velocities`).
 
 `write_trajectories` is atomic; `read_trajectories` validates every required field and
 raises `FormatError` with a message naming the file, the trajectory and the field.
@@ -22,8 +27,8 @@ from fignetctl.core.hdf5_guard import read_guarded
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.trajectories"
-FORMAT_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)
 QUATERNION_TOLERANCE = 1e-3
 
 
@@ -49,6 +54,8 @@ class Trajectory:
     quaternions : (T, O, 4) float32, w x y z
     static : (O,) bool, True for objects moved from outside (floor, environment)
     mass, friction, restitution : (O,) float32
+    velocities, angular_velocities : (T, O, 3) float32 world-frame m/s and rad/s at each frame,
+        both or neither (None: not recorded)
     extras : optional further (name -> array) datasets, kept on a round trip
     """
 
@@ -60,7 +67,13 @@ class Trajectory:
     mass: np.ndarray
     friction: np.ndarray
     restitution: np.ndarray
+    velocities: np.ndarray | None = None
+    angular_velocities: np.ndarray | None = None
     extras: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def has_velocities(self) -> bool:
+        return self.velocities is not None
 
     @property
     def num_frames(self) -> int:
@@ -81,6 +94,8 @@ class Trajectory:
             self,
             positions=self.positions[start:stop],
             quaternions=self.quaternions[start:stop],
+            velocities=None if self.velocities is None else self.velocities[start:stop],
+            angular_velocities=None if self.angular_velocities is None else self.angular_velocities[start:stop],
             extras={},
         )
 
@@ -103,6 +118,27 @@ class TrajectoryFile:
     attrs: dict = dataclasses.field(default_factory=dict)
 
 
+def estimated_velocities(positions, quaternions, dt):
+    """Velocities of frames that were not recorded with them (a version 1 file): backward
+    differences, (x_t − x_{t−1}) / dt and the rotation q_t ⊗ q_{t−1}⁻¹ as a rotation vector / dt;
+    frame 0 takes frame 1's (zero for a single frame).
+
+    positions (T, O, 3), quaternions (T, O, 4) -> velocities, angular_velocities (T, O, 3) float64
+    """
+    from fignetctl.core.transforms import quat_conjugate, quat_multiply, quat_to_rotation_vector
+
+    positions = np.asarray(positions, np.float64)
+    quaternions = np.asarray(quaternions, np.float64)
+    velocities = np.zeros_like(positions)
+    angular = np.zeros_like(positions)
+    if len(positions) > 1:
+        velocities[1:] = np.diff(positions, axis=0) / dt
+        turns = quat_multiply(quaternions[1:], quat_conjugate(quaternions[:-1]))
+        angular[1:] = quat_to_rotation_vector(turns) / dt
+        velocities[0], angular[0] = velocities[1], angular[1]
+    return velocities, angular
+
+
 # Required per-object fields: name -> (dtype kind check, trailing shape, per-frame?)
 _OBJECT_FIELDS = {
     "scales": ("f", ()),
@@ -112,6 +148,7 @@ _OBJECT_FIELDS = {
     "restitution": ("f", ()),
 }
 _FRAME_FIELDS = {"positions": 3, "quaternions": 4}
+_VELOCITY_FIELDS = ("velocities", "angular_velocities")  # optional, both or neither (version 2)
 
 
 def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gzip") -> Path:
@@ -144,9 +181,10 @@ def _write_one(group, trajectory: Trajectory, compression) -> None:
 
     names = [str(n) for n in trajectory.mesh_names]
     group.create_dataset("mesh_names", data=names, dtype=h5py.string_dtype("utf-8"))
-    for field in _FRAME_FIELDS:
-        value = np.asarray(getattr(trajectory, field), np.float32)
-        group.create_dataset(field, data=value, compression=compression)
+    for field in (*_FRAME_FIELDS, *_VELOCITY_FIELDS):
+        value = getattr(trajectory, field)
+        if value is not None:
+            group.create_dataset(field, data=np.asarray(value, np.float32), compression=compression)
     for field, (kind, _) in _OBJECT_FIELDS.items():
         dtype = bool if kind == "b" else np.float32
         group.create_dataset(field, data=np.asarray(getattr(trajectory, field), dtype))
@@ -291,8 +329,10 @@ def _read_one(group, where: str) -> Trajectory:
             raise FormatError(f"{where}: missing field {field!r}")
     names = np.array([_plain(n) for n in np.atleast_1d(_read_dataset(group, "mesh_names", where))], dtype=object)
     values = {field: _read_dataset(group, field, where) for field in required[1:]}
-    extras = {k: _read_dataset(group, k, where) for k in group.keys() if k not in required}
-    return Trajectory(mesh_names=names, extras=extras, **values)
+    velocities = {field: _read_dataset(group, field, where) for field in _VELOCITY_FIELDS if field in group}
+    known = {*required, *_VELOCITY_FIELDS}
+    extras = {k: _read_dataset(group, k, where) for k in group.keys() if k not in known}
+    return Trajectory(mesh_names=names, extras=extras, **values, **velocities)
 
 
 # Deflate (gzip) compresses at most ~1032:1, so a dataset far larger than its stored bytes is
@@ -368,6 +408,7 @@ def _validate_trajectory(t: Trajectory, meshes: dict, where: str) -> None:
         if bad.any():
             frame, obj = np.argwhere(bad)[0][:2]
             raise FormatError(f"{where}: field {field!r} is not finite at frame {frame}, object {obj}")
+    _validate_velocities(t, where)
     norms = np.linalg.norm(quaternions.astype(np.float64), axis=-1)
     off = np.abs(norms - 1.0) > QUATERNION_TOLERANCE
     if off.any():
@@ -377,6 +418,21 @@ def _validate_trajectory(t: Trajectory, meshes: dict, where: str) -> None:
             f"(norm {norms[frame, obj]:.6f})"
         )
     _validate_objects(t, meshes, objects, where)
+
+
+def _validate_velocities(t: Trajectory, where: str) -> None:
+    present = [field for field in _VELOCITY_FIELDS if getattr(t, field) is not None]
+    if len(present) == 1:
+        missing = next(field for field in _VELOCITY_FIELDS if field not in present)
+        raise FormatError(f"{where}: has {present[0]!r} but not {missing!r}; give both or neither")
+    for field in present:
+        value = np.asarray(getattr(t, field))
+        if value.shape != t.positions.shape or value.dtype.kind != "f":
+            raise FormatError(f"{where}: field {field!r} must be float {tuple(t.positions.shape)}, got {value.shape} {value.dtype}")
+        bad = ~np.isfinite(value)
+        if bad.any():
+            frame, obj = np.argwhere(bad)[0][:2]
+            raise FormatError(f"{where}: field {field!r} is not finite at frame {frame}, object {obj}")
 
 
 def _validate_objects(t: Trajectory, meshes: dict, objects: int, where: str) -> None:

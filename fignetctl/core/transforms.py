@@ -127,6 +127,23 @@ def quat_from_axis_angle(axis, angle):
     return np.concatenate([scalar_part, vector_part], axis=-1)
 
 
+def quat_to_rotation_vector(quaternions):
+    """(..., 4) w x y z -> (..., 3) float64 axis · angle, angle in [0, π] (the short way round)."""
+    unit = quat_normalize(quaternions)
+    unit = np.where(unit[..., :1] < 0, -unit, unit)
+    sine = np.linalg.norm(unit[..., 1:], axis=-1)
+    angle = 2.0 * np.arctan2(sine, unit[..., 0])
+    # angle / sin(angle / 2) -> 2 as the angle -> 0
+    factor = np.where(sine > 1e-12, angle / np.maximum(sine, 1e-12), 2.0)
+    return unit[..., 1:] * factor[..., None]
+
+
+def quat_from_rotation_vector(rotation_vectors):
+    """(..., 3) axis · angle in radians -> (..., 4) float64; zero gives the identity."""
+    rotation_vectors = np.asarray(rotation_vectors, np.float64)
+    return quat_from_axis_angle(rotation_vectors, np.linalg.norm(rotation_vectors, axis=-1))
+
+
 def quat_rotate(quaternions, vectors):
     """R(q) · v without building matrices (v + 2w(u×v) + 2u×(u×v), u the vector part).
 

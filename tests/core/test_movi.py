@@ -281,7 +281,7 @@ def test_trajectory_fields_follow_the_format(shapes, tmp_path):
     np.testing.assert_allclose(back.meshes["floor"].vertices.max(axis=0), [40, 40, 0.1])
     np.testing.assert_allclose(trajectory.positions[:, 0], [[0, 0, -0.1]] * 16, atol=1e-7)
     for name in ("velocities", "angular_velocities"):
-        assert trajectory.extras[name].shape == (16, objects, 3)
+        assert getattr(trajectory, name).shape == (16, objects, 3)
     assert trajectory.extras["final_speed"].shape == (objects,)
     assert trajectory.extras["inertia"].shape == (objects, 3, 3)
 
@@ -327,7 +327,7 @@ def energies(trajectory):
     """(T, O) kinetic + potential energy (J) of each object, from the stored fields."""
     rotations = quat_to_matrix(trajectory.quaternions)
     inertia = rotations @ trajectory.extras["inertia"][None] @ np.swapaxes(rotations, -1, -2)
-    v, w = trajectory.extras["velocities"], trajectory.extras["angular_velocities"]
+    v, w = trajectory.velocities, trajectory.angular_velocities
     rotational = 0.5 * np.einsum("toi,toij,toj->to", w, inertia, w)
     potential = trajectory.mass * GRAVITY * trajectory.positions[..., 2]
     return 0.5 * trajectory.mass * (v**2).sum(-1) + rotational + potential
@@ -391,7 +391,7 @@ def test_angular_momentum_is_conserved_in_free_flight(tosses):
     for trajectory in trajectories:
         rotations = quat_to_matrix(trajectory.quaternions)
         inertia = rotations @ trajectory.extras["inertia"][None] @ np.swapaxes(rotations, -1, -2)
-        momentum = np.einsum("toij,toj->toi", inertia, trajectory.extras["angular_velocities"])
+        momentum = np.einsum("toij,toj->toi", inertia, trajectory.angular_velocities)
         free = free_flight(trajectory, by_name)
         spinning = np.linalg.norm(momentum[:-1], axis=-1) > 0.5
         for t, o in np.argwhere(free & spinning):

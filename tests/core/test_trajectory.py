@@ -82,7 +82,7 @@ def test_refuses_non_unit_quaternion(tmp_path, box_drop):
         read_trajectories(path)
 
 
-@pytest.mark.parametrize("version", [0, 2])
+@pytest.mark.parametrize("version", [0, 3])
 def test_refuses_unknown_format_version(tmp_path, box_drop, version):
     path = write_trajectories(tmp_path / "t.h5", box_drop)
     with h5py.File(path, "r+") as f:

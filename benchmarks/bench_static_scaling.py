@@ -103,7 +103,7 @@ def step_reading_dynamic_vertex_positions(simulator, geometry, positions, quater
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator.config.graph)
     normalized = simulator(scene_graph.graph)[: scene_graph.num_dynamic_vertex_nodes]
     previous, now = scene_graph.dynamic_vertex_positions[:2]
-    next_vertices = simulator.postprocess(normalized, previous, now)
+    next_vertices, _ = simulator.postprocess(normalized, previous, now)
     return rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
 
 

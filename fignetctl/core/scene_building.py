@@ -58,7 +58,8 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
 
     object_mesh : (vertices (V, 3) relative to the object's origin, faces (F, 3))
     environment_mesh : (vertices (V, 3) relative to environment_origin, faces (F, 3))
-    origin : (3,) the object's position at rest; positions : (2, 3) its frames t-1 and t
+    origin : (3,) the object's position at rest; positions : (2, 3) its frames t-1 and t, and its velocity
+        (the same in both frames, no spin) is their difference / dt
     duplicate : the moving object is a copy; the original stays at `origin`, static, with the
         passive properties (it is part of the environment now)
     """
@@ -74,6 +75,8 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
     count = len(names)
     quaternions = np.zeros((2, count, 4), np.float32)
     quaternions[..., 0] = 1.0
+    velocities = np.zeros((2, count, 3), np.float32)
+    velocities[:, -1] = (np.asarray(positions[1], np.float64) - positions[0]) / dt  # the drop's, without spin
     trajectory = Trajectory(
         mesh_names=np.array(names, dtype=object),
         scales=np.ones(count, np.float32),
@@ -83,6 +86,8 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
         mass=np.array([p.mass for p in props], np.float32),
         friction=np.array([p.friction for p in props], np.float32),
         restitution=np.array([p.restitution for p in props], np.float32),
+        velocities=velocities,
+        angular_velocities=np.zeros((2, count, 3), np.float32),
     )
     attrs = {"source": "fignetctl build-graph", "duplicate": bool(duplicate)}
     return TrajectoryFile(dt=float(dt), gravity=np.asarray(gravity, np.float64), meshes=meshes, trajectories={"scene": trajectory}, attrs=attrs)

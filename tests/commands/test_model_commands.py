@@ -65,18 +65,24 @@ def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
 def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     _, data, model = trained
     out = tmp_path / "metrics.json"
-    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "-o", str(out)])
+    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--with-guards", "-o", str(out)])
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     metrics = report["metrics"]
-    assert set(metrics) == {"model", "constant_velocity", "stand_still"}
+    assert set(metrics) == {"model", "model_with_guards", "constant_velocity", "stand_still"}
+    assert metrics["model_with_guards"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free flight: exact while the box falls
+    # physical horizons at the file's 60 fps: 0.1 s = 6 steps, ..., 1 s = 60 steps; 1.67 s and 2 s are past its 80 frames
+    assert sorted(metrics["stand_still"]) == sorted(["50_steps", "0.1_seconds", "0.2_seconds", "0.33_seconds", "0.5_seconds", "1_seconds"])
+    half_second = metrics["stand_still"]["0.5_seconds"]["all"]
+    assert half_second["translation_rmse_m"] == pytest.approx(0.5 * 10 * ((31 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
+    assert half_second["rotation_rms_deg"] >= half_second["rotation_error_deg"] > 0
     falling = metrics["stand_still"]["50_steps"]["all"]["translation_rmse_m"]
     assert falling == pytest.approx(0.5 * 10 * ((51 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
     assert metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free fall is ballistic
     assert "box" in metrics["model"]["50_steps"]["per_shape"]
     curve = report["curves"]["stand_still"]  # every step k: the box has fallen g((k+1)² − 1)dt²/2
     steps = np.array(curve["step"])
-    np.testing.assert_array_equal(steps, np.arange(1, 51))  # 80 frames at 60 fps: 2 s is beyond them
+    np.testing.assert_array_equal(steps, np.arange(1, 61))  # to the longest horizon inside 80 frames: 1 s
     np.testing.assert_allclose(curve["translation_rmse_m"], 0.5 * 10 * ((steps + 1) ** 2 - 1) / 60**2, rtol=1e-3)
     assert report["curves"]["model"]["translation_rmse_m"][49] == metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
     versus_stand_still = report["comparison"]["stand_still"]["50_steps"]

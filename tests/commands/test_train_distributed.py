@@ -1,6 +1,5 @@
 """Data-parallel training: 2 processes on the CPU under torchrun (gloo)."""
 
-import json
 import os
 import subprocess
 import sys
@@ -37,9 +36,7 @@ def test_two_processes_train_and_resume_together(tmp_path):
     first = _torchrun_train(data, model, 4)
     assert first.returncode == 0, _why(first)
     state = torch.load(model, weights_only=True)["training_state"]
-    rng_states = json.loads(state["rng"])
-    assert state["step"] == 4 and len(rng_states) == 2
-    assert rng_states[0] != rng_states[1]  # each process draws its own batches
+    assert state["step"] == 4 and state["world_size"] == 2
     resumed = _torchrun_train(data, model, 6, "--resume")
     assert resumed.returncode == 0, _why(resumed)
     assert torch.load(model, weights_only=True)["training_state"]["step"] == 6

@@ -187,7 +187,7 @@ def make_workload(simulator, scene, frame, noise_generator, device) -> Workload:
 
     positions, quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
     graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph).graph
-    example, targets = training_example(simulator, scene, frame, noise_generator, TrainingConfig())
+    example, targets = training_example(simulator.config, scene, frame, noise_generator, TrainingConfig())
     rows = torch.arange(example.num_dynamic_vertex_nodes, device=device)
     return Workload(simulator, scene, frame, graph, example.graph, rows, targets)
 
@@ -214,7 +214,7 @@ def run_training_step(workload: Workload, device) -> float:
     """Forward and backward of one graph (no optimiser update); gradients freed after."""
     simulator = workload.simulator
     graph = copied_to(workload.training_graph, device)
-    targets = simulator.inverse_postprocess(workload.training_targets.to(device), accumulate=False)
+    targets = simulator.normalized_targets(workload.training_targets.to(device), accumulate=False)
     predictions = simulator(graph)[workload.training_rows]
     loss = torch.mean((predictions - targets) ** 2)
     loss.backward()
@@ -242,7 +242,7 @@ def fit_normalizers(workload: Workload, device) -> None:
     with torch.no_grad():
         simulator(workload.graph.to(device), accumulate=True)
         simulator(workload.training_graph.to(device), accumulate=True)
-        simulator.inverse_postprocess(workload.training_targets.to(device), accumulate=True)
+        simulator.normalized_targets(workload.training_targets.to(device), accumulate=True)
 
 
 def synchronizer(device):

@@ -1,9 +1,11 @@
 """The paper's metrics for rollouts against ground truth, and two baselines to compare with.
 
 Translation error: RMSE over dynamic objects of |p_pred − p_gt| at a horizon (metres).
-Rotation error: mean over dynamic objects of the angle of q_gt⁻¹ · q_pred (degrees).
-Horizons: 50 rollout steps (the paper) and a fixed 2 seconds (so datasets at different frame
-rates compare); a trajectory too short for a horizon is left out of that horizon.
+Rotation error: mean over dynamic objects of the angle of q_gt⁻¹ · q_pred (degrees), and its
+RMS beside it. Horizons: 50 rollout steps (the paper's count, at the data's frame rate) and
+physical times 0.1, 0.2, 0.33, 0.5, 1.0, 1.67 and 2 s (so results at different frame rates,
+the paper's included, compare only at a matched time); a trajectory too short for a horizon is
+left out of that horizon.
 
 Beside the metrics: the same errors at every rollout step (`curves`), and the model against
 each baseline on the same objects (`comparison`): the ratio of translation RMSEs and the
@@ -24,7 +26,7 @@ import numpy as np
 from fignetctl.core.transforms import quat_angle_deg
 
 PAPER_STEPS = 50
-SECONDS_HORIZON = 2.0
+SECONDS_HORIZONS = (0.1, 0.2, 0.33, 0.5, 1.0, 1.67, 2.0)
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
 
@@ -84,8 +86,10 @@ def _floor_height(geometry, positions, quaternions):
 
 
 def horizon_steps(dt, num_frames):
-    """{'50_steps': k, '2_seconds': k} for the horizons a trajectory of num_frames covers."""
-    horizons = {f"{PAPER_STEPS}_steps": PAPER_STEPS, f"{SECONDS_HORIZON:g}_seconds": int(round(SECONDS_HORIZON / dt))}
+    """{'50_steps': 50, '0.1_seconds': k, ...} for the horizons a trajectory of num_frames
+    covers (a time is round(time / dt) steps, at least one)."""
+    horizons = {f"{PAPER_STEPS}_steps": PAPER_STEPS}
+    horizons.update({f"{seconds:g}_seconds": max(1, int(round(seconds / dt))) for seconds in SECONDS_HORIZONS})
     return {name: steps for name, steps in horizons.items() if 1 + steps < num_frames}
 
 
@@ -107,22 +111,24 @@ def summarize_errors(records):
     return {
         "translation_rmse_m": float(np.sqrt(np.mean(translation**2))),
         "rotation_error_deg": float(np.mean(rotation)),
+        "rotation_rms_deg": float(np.sqrt(np.mean(rotation**2))),
         "objects": int(translation.size),
         "trajectories": len(records),
     }
 
 
-def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_flight=None, keep_out=False):
+def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_flight=None, keep_out=False, guarded=None):
     """name -> (positions, quaternions) for the model (sleeping with SleepSettings `sleep`, free
-    flight with gravity · dt² `free_flight`, `keep_out` of static meshes: rollout.rollout) and
-    both baselines."""
+    flight with gravity · dt² `free_flight`, `keep_out` of static meshes: rollout.rollout), the
+    model with the guards `guarded` (a dict of those three, or None: not run) and both baselines."""
     from fignetctl.core.model.rollout import rollout
 
-    return {
-        "model": rollout(simulator, scene, num_steps, sleep=sleep, free_flight=free_flight, keep_out=keep_out),
-        "constant_velocity": constant_velocity_baseline(scene, num_steps, gravity, dt),
-        "stand_still": stand_still_baseline(scene, num_steps),
-    }
+    rollouts = {"model": rollout(simulator, scene, num_steps, sleep=sleep, free_flight=free_flight, keep_out=keep_out)}
+    if guarded is not None:
+        rollouts["model_with_guards"] = rollout(simulator, scene, num_steps, **guarded)
+    rollouts["constant_velocity"] = constant_velocity_baseline(scene, num_steps, gravity, dt)
+    rollouts["stand_still"] = stand_still_baseline(scene, num_steps)
+    return rollouts
 
 
 def scene_error_records(scene, mesh_names, rollouts, horizons):
@@ -145,8 +151,9 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     return records
 
 
-def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None, keep_out=False):
-    """Metrics of the model and the baselines on scenes of one trajectory file.
+def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None, keep_out=False, guarded=None):
+    """Metrics of the model (and the model with the guards `guarded`, see method_rollouts) and
+    the baselines on scenes of one trajectory file.
 
     returns {"metrics": {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}},
              "curves": {method: per-step lists}, "comparison": {baseline: {horizon: compare(...)}}},
@@ -157,7 +164,7 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_fli
         horizons = horizon_steps(data.dt, scene.positions.shape[0])
         if not horizons:
             continue
-        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep, free_flight, keep_out)
+        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep, free_flight, keep_out, guarded)
         mesh_names = data.trajectories[scene.name].mesh_names
         for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
             all_records.setdefault(key, []).extend(records)

@@ -125,9 +125,15 @@ def edge_update_inputs(
     edge_latents: torch.Tensor, node_latents: torch.Tensor, edge_set: EdgeSet
 ) -> torch.Tensor:
     """[edge latent, sender latent(s), receiver latent(s)]: (E, 3L), or (E, 9L) for face–face."""
-    sender_latents = node_latents[edge_set.senders].flatten(1)
-    receiver_latents = node_latents[edge_set.receivers].flatten(1)
-    return torch.cat([edge_latents, sender_latents, receiver_latents], dim=-1)
+    return torch.cat([edge_latents, gathered(node_latents, edge_set.senders), gathered(node_latents, edge_set.receivers)], dim=-1)
+
+
+def gathered(node_latents: torch.Tensor, nodes: torch.Tensor) -> torch.Tensor:
+    """The latents of `nodes` (E,) or (E, 3), flattened to (E, L) or (E, 3L). index_select, not
+    fancy indexing: its backward is a sum into rows (index_add), 2-3x faster on the CPU than
+    fancy indexing's accumulating index_put."""
+    width = node_latents.shape[1] * (nodes.shape[1] if nodes.dim() == 2 else 1)
+    return node_latents.index_select(0, nodes.reshape(-1)).reshape(nodes.shape[0], width)
 
 
 class GraphNetBlock(nn.Module):

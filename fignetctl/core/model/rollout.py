@@ -104,18 +104,25 @@ class Sleepers:
 
 
 def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, sleep: SleepSettings | None = None,
-            free_flight=None, keep_out=False):
+            free_flight=None, keep_out=False, with_velocities=False):
     """Predict `num_steps` frames after frames 0 and 1 of `scene`.
 
     sleep : SleepSettings to let resting objects sleep (module docstring); None: never
     free_flight : gravity · dt² (3,) to move objects that touch nothing in exact free flight
         (LearnedSimulator.step); None: the network moves every dynamic object
     keep_out : after each step, translate dynamic objects back out of the static meshes
-        (and asleep objects) they passed into (penetration.push_out_of_static)
-    returns positions (2 + K, O, 3), quaternions (2 + K, O, 4) float64
+        (and asleep objects) they passed into (penetration.push_out_of_static); a
+        velocity-state model's object also loses the part of its velocity along the push
+    with_velocities : also return the velocities a velocity-state model carries
+    returns positions (2 + K, O, 3), quaternions (2 + K, O, 4) float64, and with
+        `with_velocities` velocities and angular velocities (2 + K, O, 3) in m/s and rad/s
+        (frames 0 and 1 the scene's; None for a positions-state model)
     """
     positions = [scene.positions[0], scene.positions[1]]
     quaternions = [scene.quaternions[0], scene.quaternions[1]]
+    carries = simulator.config.uses_velocities
+    velocities = [scene.velocities[0], scene.velocities[1]] if carries else None
+    angular = [scene.angular_velocities[0], scene.angular_velocities[1]] if carries else None
     sleepers = None if sleep is None else Sleepers(scene.geometry, sleep, simulator.config.graph.collision_radius)
     for step in range(num_steps):
         next_static = given_static_pose(scene, step + 2)
@@ -127,19 +134,40 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
                            np.where(sleepers.asleep[:, None], quaternions[-1], next_static[1]))
         if sleepers is not None and sleepers.all_asleep():
             new_position, new_quaternion = next_static
+            new_velocity = new_angular = np.zeros_like(new_position) if carries else None
         else:
             geometry = scene.geometry if sleepers is None else sleepers.scene_geometry()
             history_positions = np.stack([positions[-2], positions[-1], next_static[0]])
             history_quaternions = np.stack([quaternions[-2], quaternions[-1], next_static[1]])
-            new_position, new_quaternion = simulator.step(geometry, history_positions, history_quaternions, free_flight=free_flight)
+            state = (velocities[-1], angular[-1]) if carries else None
+            new_position, new_quaternion, new_velocity, new_angular = simulator.predict(
+                geometry, history_positions, history_quaternions, free_flight=free_flight, velocities=state)
             if keep_out:
+                predicted = new_position
                 new_position, _ = push_out_of_static(geometry, positions[-1], quaternions[-1], new_position, new_quaternion)
+                if carries:
+                    new_velocity = without_velocity_into(new_velocity, new_position - predicted)
         check_step(step, new_position, new_quaternion, positions, quaternions, max_distance)
         positions.append(new_position)
         quaternions.append(new_quaternion)
+        if carries:
+            velocities.append(new_velocity)
+            angular.append(new_angular)
         if on_step is not None:
             on_step(step)
-    return np.stack(positions), np.stack(quaternions)
+    result = np.stack(positions), np.stack(quaternions)
+    if not with_velocities:
+        return result
+    return (*result, None, None) if not carries else (*result, np.stack(velocities), np.stack(angular))
+
+
+def without_velocity_into(velocities, pushes):
+    """(O, 3) velocities less their component against each object's push (O, 3) out of a static
+    mesh (an inelastic impact along the push); objects not pushed keep theirs."""
+    length = np.linalg.norm(pushes, axis=1, keepdims=True)
+    direction = np.divide(pushes, length, out=np.zeros_like(pushes), where=length > 0)
+    into = np.minimum(np.sum(velocities * direction, axis=1, keepdims=True), 0.0)
+    return velocities - into * direction
 
 
 def check_step(step, new_position, new_quaternion, positions, quaternions, max_distance):

@@ -37,6 +37,29 @@ def free_flight_acceleration(data):
     return np.asarray(data.gravity, np.float64) * float(data.dt) ** 2
 
 
+def simulation_time_step(simulator, data, key, where) -> float:
+    """Seconds per step of a rollout of trajectory `key` of a file.
+
+    A velocity-state model steps at the time step it was trained at, whatever the scene's
+    frame time: it starts from frame 1's pose and velocity, and frame 0 is not read (unless
+    static objects move: their given frames must then be at that time step). A positions-state
+    model reads frames 0 and 1 as one of its steps, so they must be its time step apart.
+    Models that record no time step take the file's.
+    """
+    trained = simulator.config.dt
+    if trained is None or np.isclose(trained, data.dt, rtol=1e-3):
+        return data.dt if trained is None else trained
+    trajectory = data.trajectories[key]
+    static = np.asarray(trajectory.static, bool)
+    still = np.allclose(trajectory.positions[:, static], trajectory.positions[:1, static]) and \
+        np.allclose(trajectory.quaternions[:, static], trajectory.quaternions[:1, static])
+    if simulator.config.uses_velocities and still:
+        return trained
+    raise FignetError(f"{where}: its frames are {data.dt:.6g} s apart, the model steps {trained:.6g} s "
+                      f"({'static objects move over the given frames' if simulator.config.uses_velocities else 'its two input frames must be one step apart'}); "
+                      f"give the scene at dt = {trained:.6g} s")
+
+
 def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False,
                  free_flight=False, keep_out=False) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
@@ -47,6 +70,9 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
     keep_out : objects are moved back out of static meshes they pass into (penetration.py)
+
+    The result holds the model's time step (`simulation_time_step`, over √sim_scale), and the
+    velocities of a velocity-state model.
     """
     from fignetctl.core.model import similarity
 
@@ -54,27 +80,28 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
     key = next(iter(data.trajectories))
     if data.trajectories[key].num_frames < 2:
         raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
+    step_dt = simulation_time_step(simulator, data, key, scene_path)
     scale = similarity.auto_scale(data, key) if sim_scale == "auto" else float(sim_scale)
-    simulated, dt = data, data.dt
+    simulated = data
     if scale != 1.0:
-        simulated, history_positions, history_quaternions = similarity.scaled_scene(data, key, scale)
-        dt = data.dt / scale**0.5
+        simulated, history = similarity.scaled_scene(data, key, scale)
     scene = scene_from_trajectory(simulated, key, simulator.config)
     warn_untrained_properties(simulator, [data.trajectories[key]])
+    stepped = dataclasses.replace(data, dt=step_dt)
 
-    def result(positions, quaternions):
+    def result(frames):
         if scale != 1.0:
-            positions = np.concatenate([history_positions, positions[2:] / scale])
-            quaternions = np.concatenate([history_quaternions, quaternions[2:]])
-        return rollout_result(data, key, positions, quaternions, simulator, dt, scale)
+            frames = similarity.unscaled_frames(frames, history, scale)
+        return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
 
     try:
-        positions, quaternions = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(data) if sleep else None,
-                                         free_flight=free_flight_acceleration(data) if free_flight else None, keep_out=keep_out)
+        frames = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(stepped) if sleep else None,
+                         free_flight=free_flight_acceleration(stepped) if free_flight else None, keep_out=keep_out,
+                         with_velocities=True)
     except RolloutError as error:
-        error.partial_file = result(error.positions, error.quaternions)
+        error.partial_file = result((error.positions, error.quaternions, None, None))
         raise
-    return result(positions, quaternions)
+    return result(frames)
 
 
 def warn_untrained_properties(simulator, trajectories) -> None:
@@ -88,12 +115,15 @@ def warn_untrained_properties(simulator, trajectories) -> None:
         log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)
 
 
-def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_scale=1.0) -> TrajectoryFile:
-    """A trajectory file of the rollout: the scene's meshes and objects, the new frames."""
+def rollout_result(data, key, positions, quaternions, velocities, angular_velocities, simulator, dt=None, sim_scale=1.0) -> TrajectoryFile:
+    """A trajectory file of the rollout: the scene's meshes and objects, the new frames (with
+    velocities when given, (T, O, 3) m/s and rad/s)."""
     trajectory = dataclasses.replace(
         data.trajectories[key],
         positions=positions.astype(np.float32),
         quaternions=(quaternions / np.linalg.norm(quaternions, axis=-1, keepdims=True)).astype(np.float32),
+        velocities=None if velocities is None else velocities.astype(np.float32),
+        angular_velocities=None if velocities is None else angular_velocities.astype(np.float32),
         extras={},
     )
     used = set(trajectory.mesh_names)
@@ -102,17 +132,23 @@ def rollout_result(data, key, positions, quaternions, simulator, dt=None, sim_sc
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False, keep_out=False) -> dict:
-    """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file."""
+def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False, keep_out=False,
+                  with_guards=False) -> dict:
+    """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file;
+    `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping)."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
     data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
+    if simulator.config.dt is not None and not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
+        raise FignetError(f"{data_path}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
+                          "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step")
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
+    guarded = dict(sleep=sleep_settings(data), free_flight=free_flight_acceleration(data), keep_out=True) if with_guards else None
     results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None,
-                              free_flight_acceleration(data) if free_flight else None, keep_out)
+                              free_flight_acceleration(data) if free_flight else None, keep_out, guarded)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),

@@ -23,7 +23,7 @@ import dataclasses
 import numpy as np
 
 from fignetctl.core.model.scene_graph import SceneGeometry, scene_geometry
-from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
+from fignetctl.core.trajectory import TrajectoryFile, estimated_velocities, read_trajectories
 
 
 @dataclasses.dataclass
@@ -32,12 +32,23 @@ class Scene:
 
     geometry : SceneGeometry of its objects (decimated meshes)
     positions : (T, O, 3) float64, quaternions : (T, O, 4) float64 (w x y z)
+    dt : seconds between frames
+    velocities, angular_velocities : (T, O, 3) float64 m/s and rad/s at each frame, recorded,
+        or, when not given, estimated from the frames (`velocities_recorded` says which)
     """
 
     name: str
     geometry: SceneGeometry
     positions: np.ndarray
     quaternions: np.ndarray
+    dt: float = 1 / 30
+    velocities: np.ndarray | None = None
+    angular_velocities: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.velocities_recorded = self.velocities is not None
+        if not self.velocities_recorded:
+            self.velocities, self.angular_velocities = estimated_velocities(self.positions, self.quaternions, self.dt)
 
 
 def decimated_mesh(vertices, faces, max_faces):
@@ -98,7 +109,10 @@ def scene_from_trajectory(data: TrajectoryFile, trajectory_id, config, mesh_cach
     if static_reach is not None:
         meshes = _crop_static_meshes(meshes, trajectory.scales, static, positions, quaternions, static_reach)
     geometry = scene_geometry(meshes, trajectory.scales, static, trajectory.properties)
-    return Scene(str(trajectory_id), geometry, positions, quaternions)
+    velocities = [None, None]
+    if trajectory.has_velocities:
+        velocities = [np.asarray(trajectory.velocities, np.float64), np.asarray(trajectory.angular_velocities, np.float64)]
+    return Scene(str(trajectory_id), geometry, positions, quaternions, float(data.dt), *velocities)
 
 
 def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
@@ -130,6 +144,10 @@ def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
 
 def scenes_from_file(path, config, static_reach=None) -> list[Scene]:
     """Every trajectory of a file as a Scene (needs at least 3 frames each for training)."""
-    data = read_trajectories(path)
+    return scenes_from_data(read_trajectories(path), config, static_reach)
+
+
+def scenes_from_data(data: TrajectoryFile, config, static_reach=None) -> list[Scene]:
+    """Every trajectory of a read file as a Scene."""
     cache = {}
     return [scene_from_trajectory(data, key, config, cache, static_reach) for key in data.trajectories]

@@ -6,7 +6,8 @@ Nodes, in this order:
    (static geometry far from every moving object adds nothing),
 3. one object node per dynamic object, at its centre of mass.
 
-Node features (12): velocity x_t − x_{t−1} (3), kinematic displacement x_{t+1} − x_t of static
+Node features (12): velocity x_t − x_{t−1} (3; for a velocity state, each dynamic point's
+instantaneous velocity (v + ω × (x − c)) times dt), kinematic displacement x_{t+1} − x_t of static
 nodes (3, zero for dynamic ones), mass, friction, restitution, the static bit, and a node-type
 one-hot (mesh, object).
 
@@ -84,6 +85,12 @@ class GraphConfig:
     huge triangles then looks like any other face near the contact, instead of setting the
     normaliser's scale to tens of metres, and without the edges a subdivided floor costs.
     None: not clamped (model files older than this field read as None)."""
+    static_receivers: bool = True
+    """True: face–face edges run both ways between a dynamic and a static face. False: only
+    into the dynamic face, so static nodes send but never aggregate: a floor vertex would
+    otherwise sum the messages of every face near it, a scene-wide hub, and nothing a static
+    node receives moves it. 28 % fewer face–face edges on movi-b. Model files before this
+    field read as True."""
     speculative: bool = False
     """True: faces of a dynamic and a static object also pair within the radius plus the
     objects' largest vertex displacement over the step (dynamic: t−1 -> t; static: its given
@@ -302,12 +309,16 @@ class SceneGraph:
         return history
 
 
-def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
+def build_scene_graph(geometry, positions, quaternions, config, velocities=None) -> SceneGraph:
     """Object poses at t−1, t, t+1 -> the raw graph of step t.
 
     positions : (3, O, 3) float, quaternions : (3, O, 4) float w x y z, for frames t−1, t, t+1;
     frame t+1 is read only for static objects (their given motion); pass anything finite
     (e.g. frame t) for the dynamic ones.
+    velocities : None, or (linear (O, 3), angular (O, 3)) of the objects at t in metres and
+    radians per step: the dynamic nodes' frame t−1 is then x_t − (v + ω × (x_t − c_t)), so
+    that their velocity feature is their instantaneous velocity, and frame t−1 of dynamic
+    objects is not read.
 
     Only dynamic vertices and the vertices of static faces in collision pairs are transformed
     to world coordinates; the broad phase reuses each static object's FaceGroup while its
@@ -318,6 +329,8 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     dynamic_history = np.stack(
         [geometry.world_vertices(p, q, geometry.dynamic_vertices) for p, q in zip(positions, quaternions)]
     )
+    if velocities is not None:
+        positions, dynamic_history = _history_from_velocities(geometry, positions, dynamic_history, velocities)
     margins = speculative_margins(geometry, dynamic_history, positions, quaternions, config.collision_radius) if config.speculative else None
     pair_i, pair_j = collision_face_pairs_from_poses(
         geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius, margins
@@ -326,7 +339,8 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     node_history = node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions)
     vertex_nodes = VertexNodes(node_vertex)
     edge_sets = object_mesh_edge_sets(geometry, node_vertex, node_object, node_history[1])
-    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes, config.max_vertex_offset)
+    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes, config.max_vertex_offset,
+                                              config.static_receivers)
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
@@ -335,6 +349,27 @@ def build_scene_graph(geometry, positions, quaternions, config) -> SceneGraph:
     touching = np.zeros(len(geometry.static), bool)
     touching[geometry.face_object[np.concatenate([pair_i, pair_j])]] = True
     return SceneGraph(graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions), touching)
+
+
+def _history_from_velocities(geometry, positions, dynamic_history, velocities):
+    """Frame t−1 of dynamic objects and vertices replaced by x_t − velocity (build_scene_graph)."""
+    linear, angular = (np.asarray(v, np.float64) for v in velocities)
+    dynamic = ~geometry.static
+    positions = positions.copy()
+    positions[0, dynamic] = positions[1, dynamic] - linear[dynamic]
+    dynamic_history = dynamic_history.copy()
+    dynamic_history[0] = dynamic_history[1] - rigid_point_velocities(
+        dynamic_history[1], geometry.vertex_object[geometry.dynamic_vertices], positions[1], linear, angular)
+    return positions, dynamic_history
+
+
+def rigid_point_velocities(points, point_object, centres, linear, angular):
+    """Velocities v + ω × (x − c) of points moving with their objects.
+
+    points (P, 3), point_object (P,) the object of each point, centres (O, 3), linear and
+    angular (O, 3) -> (P, 3) float64, in the units of linear
+    """
+    return linear[point_object] + np.cross(angular[point_object], points - centres[point_object])
 
 
 def collision_face_pairs(geometry, vertices_now, radius):
@@ -503,10 +538,14 @@ def surface_edges_between(geometry, vertex_nodes):
     return np.sort(candidates[both])
 
 
-def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None):
-    """Collision hyper-edges for the face pairs, in both directions."""
+def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None, static_receivers=True):
+    """Collision hyper-edges for the face pairs, in both directions (into dynamic faces only
+    unless `static_receivers`)."""
     sender_faces = np.concatenate([pair_i, pair_j])
     receiver_faces = np.concatenate([pair_j, pair_i])
+    if not static_receivers:
+        into_dynamic = ~geometry.static[geometry.face_object[receiver_faces]]
+        sender_faces, receiver_faces = sender_faces[into_dynamic], receiver_faces[into_dynamic]
     sender_nodes = vertex_nodes.nodes(geometry.faces[sender_faces])
     receiver_nodes = vertex_nodes.nodes(geometry.faces[receiver_faces])
     features, sender_order, receiver_order = face_face_features(node_now[sender_nodes], node_now[receiver_nodes], max_vertex_offset)

@@ -68,9 +68,11 @@ def retimed_history(trajectory, dt: float, new_dt: float, gravity):
 
 
 def scaled_scene(data, key, scale: float):
-    """A copy of the file holding trajectory `key` at `scale`, history re-timed (module docstring).
+    """A copy of the file holding trajectory `key` at `scale`, history re-timed (module docstring),
+    and the frames t−1 and t it started from at the original size (positions, quaternions,
+    velocities, angular velocities; velocities None when the file has none).
 
-    The copy has only frames t−1 and t.
+    The copy has only frames t−1 and t; its velocities are scaled by √s, angular ones by 1/√s.
     """
     if not (math.isfinite(scale) and scale > 0):
         raise FignetError(f"the simulation scale must be a positive number, not {scale}")
@@ -84,11 +86,35 @@ def scaled_scene(data, key, scale: float):
             "so the scene cannot be simulated at another scale; use --sim-scale 1"
         )
     positions, quaternions = retimed_history(trajectory, data.dt, data.dt / math.sqrt(scale), data.gravity)
+    velocities = angular = None
+    if trajectory.has_velocities:
+        velocities = np.asarray(trajectory.velocities[:2], np.float64)
+        angular = np.asarray(trajectory.angular_velocities[:2], np.float64)
     scaled = dataclasses.replace(
         trajectory,
         positions=positions * scale,
         quaternions=quaternions,
+        velocities=None if velocities is None else velocities * math.sqrt(scale),
+        angular_velocities=None if angular is None else angular / math.sqrt(scale),
         scales=np.asarray(trajectory.scales, np.float64) * scale,
         extras={},
     )
-    return dataclasses.replace(data, trajectories={key: scaled}), positions, quaternions
+    return dataclasses.replace(data, trajectories={key: scaled}), (positions, quaternions, velocities, angular)
+
+
+def unscaled_frames(frames, history, scale: float):
+    """A rollout of `scaled_scene`'s copy mapped back: `history` (its frames t−1, t at the
+    original size) followed by the predicted frames, positions / s, velocities / √s, angular
+    velocities · √s.
+
+    frames, history : positions (T, O, 3), quaternions (T, O, 4), velocities and angular
+    velocities (T, O, 3) or None each
+    """
+    positions, quaternions, velocities, angular = frames
+    root = math.sqrt(scale)
+    mapped = [np.concatenate([history[0], positions[2:] / scale]), np.concatenate([history[1], quaternions[2:]])]
+    for k, (values, factor) in enumerate(((velocities, 1 / root), (angular, root)), start=2):
+        if values is not None:
+            values = np.concatenate([values[:2] if history[k] is None else history[k] / factor, values[2:]]) * factor
+        mapped.append(values)
+    return mapped

@@ -7,10 +7,25 @@ targets (`inverse_postprocess`); noise comes from noise.py and is passed in.
 
 One step reads like the paper:
 
-    scene_graph = build_scene_graph(geometry, positions, quaternions, config.graph)
+    scene_graph = build_scene_graph(geometry, positions, quaternions, config.graph, velocities)
     normalized_acceleration = self.network(self.preprocess(scene_graph.graph))
-    next_vertices = self.postprocess(normalized_acceleration, vertices_previous, vertices_now)
+    next_vertices, next_vertex_velocities = self.postprocess(normalized_acceleration, vertices_previous, vertices_now)
     next_pose = shape_match(rest shape -> next_vertices)   # rigid, never a reflection
+
+Two kinds of state (`SimulatorConfig.state`):
+
+- ``"positions"`` (FIGNet): frames t−1 and t; a vertex's velocity is x_t − x_{t−1}, the decoder
+  gives one acceleration a per vertex and x_{t+1} = x_t + (x_t − x_{t−1}) + a. At 30 fps a frame
+  holds 8 physics steps, so after an impact inside the frame x_t − x_{t−1} mixes the velocities
+  before and after it: two frames do not determine the next one.
+- ``"velocities"``: frame t and each object's instantaneous linear and angular velocity, a
+  state that does. A vertex's velocity feature is u_t = (v + ω × (x − c)) · dt (metres per
+  frame, as x_t − x_{t−1} was); the decoder gives two vectors per vertex, a_x and a_u, and
+
+      x_{t+1} = x_t + u_t + a_x          u_{t+1} = u_t + a_u
+
+  The next pose is shape-matched to x_{t+1}, the next (v, ω) is the rigid velocity field
+  fitted to u_{t+1} by least squares (`rigid_velocities_from_vertices`).
 """
 
 from __future__ import annotations
@@ -33,7 +48,16 @@ from fignetctl.core.model.scene_graph import (
     graph_signature_for,
 )
 from fignetctl.core.shape_matching import fit_rigid_transform
-from fignetctl.core.transforms import matrix_to_quat, quat_conjugate, quat_multiply, quat_normalize
+from fignetctl.core.transforms import (
+    matrix_to_quat,
+    quat_conjugate,
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_normalize,
+)
+from fignetctl.errors import FignetError
+
+STATES = ("positions", "velocities")
 
 # Floor of every normaliser's std: features are in metres (per step) and material units, so a
 # spread below a micrometre is float rounding, which must not be blown up into signal.
@@ -58,6 +82,24 @@ class SimulatorConfig:
     tens of metres and hide the object's contact geometry. Subdividing the floor to 1 m (the
     v2 retraining) fixed that at 2.8x the face-face edges; clamping the offsets
     (`GraphConfig.max_vertex_offset`, the default now) fixes it with none."""
+    state: str = "positions"
+    """'positions' (frames t−1 and t) or 'velocities' (frame t and instantaneous velocities);
+    module docstring."""
+    dt: float | None = None
+    """Seconds per step of the training data (None: not recorded, model files before it)."""
+    gravity: tuple | None = None
+    """Gravity (m/s²) of the training data (None: not recorded)."""
+
+    def __post_init__(self) -> None:
+        if self.state not in STATES:
+            raise ValueError(f"state must be one of {STATES}, not {self.state!r}")
+        if self.network.output_size != output_size_for(self.state):
+            raise ValueError(f"a {self.state!r} model decodes {output_size_for(self.state)} numbers per node, "
+                             f"the network {self.network.output_size}")
+
+    @property
+    def uses_velocities(self) -> bool:
+        return self.state == "velocities"
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
@@ -65,13 +107,22 @@ class SimulatorConfig:
     @classmethod
     def from_json(cls, text: str) -> "SimulatorConfig":
         values = json.loads(text)
-        graph = {"max_vertex_offset": None, **values["graph"]}  # absent: a model file older than the field
+        graph = {"max_vertex_offset": None, "static_receivers": True, **values["graph"]}  # absent: a model file older than the field
+        gravity = values.get("gravity")
         return cls(
             network=NetworkConfig(**values["network"]),
             graph=GraphConfig(**graph),
             max_faces_per_object=values["max_faces_per_object"],
             max_static_edge=values.get("max_static_edge"),  # absent: a model trained without
+            state=values.get("state", "positions"),
+            dt=values.get("dt"),
+            gravity=None if gravity is None else tuple(gravity),
         )
+
+
+def output_size_for(state: str) -> int:
+    """Numbers decoded per node: a_x (positions), or a_x and a_u (velocities)."""
+    return 6 if state == "velocities" else 3
 
 
 class LearnedSimulator(nn.Module):
@@ -86,7 +137,7 @@ class LearnedSimulator(nn.Module):
         self.edge_normalizers = nn.ModuleDict(
             {name: Normalizer(size, std_epsilon=STD_EPSILON) for name, size in signature.edge_feature_sizes.items()}
         )
-        self.acceleration_normalizer = Normalizer(3, std_epsilon=STD_EPSILON)
+        self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
         self.trained_properties = None  # ranges of the training data's properties (properties.py)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
@@ -110,46 +161,124 @@ class LearnedSimulator(nn.Module):
         """Raw graph -> (N, 3) normalised per-node accelerations."""
         return self.network(self.preprocess(graph, accumulate))
 
-    def inverse_postprocess(self, acceleration: torch.Tensor, accumulate: bool) -> torch.Tensor:
-        """(n, 3) accelerations in metres per step² -> normalised training targets."""
-        return self.acceleration_normalizer(acceleration, accumulate)
+    def inverse_postprocess(self, next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, accumulate=False):
+        """What the network must output to reach x_{t+1} (and u_{t+1} for a velocity state) from
+        the history: normalised `acceleration_targets`, a (n, output_size) float32 tensor."""
+        targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
+        return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
+
+    def normalized_targets(self, targets: torch.Tensor, accumulate: bool) -> torch.Tensor:
+        """(n, output_size) raw `acceleration_targets` -> normalised (statistics updated when `accumulate`)."""
+        return self.acceleration_normalizer(targets, accumulate)
 
     def postprocess(self, normalized_acceleration, vertices_previous, vertices_now):
-        """Integrate x_{t+1} = x_t + (x_t − x_{t−1}) + a; all (n, 3), float64 numpy out."""
+        """The network's output -> x_{t+1}, and u_{t+1} for a velocity state (None for a
+        positions state): `integrate` of the denormalised output; float64 numpy."""
         acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
-        acceleration = acceleration.detach().cpu().double().numpy()
-        return 2.0 * vertices_now - vertices_previous + acceleration
+        return integrate(acceleration.detach().cpu().double().numpy(), vertices_previous, vertices_now)
+
+    def step_velocities(self, positions, quaternions, velocities):
+        """(O, 3) x2 linear and angular velocities in metres and radians per step at frame t:
+        the given ones (m/s, rad/s) times dt, or, when None, estimated from frames t−1 and t."""
+        if velocities is None:
+            return finite_difference_step_velocities(positions[:2], quaternions[:2])
+        if self.config.dt is None:
+            raise FignetError("the model file records no time step, so velocities cannot be given to it")
+        return tuple(np.asarray(v, np.float64) * self.config.dt for v in velocities)
 
     @torch.no_grad()
-    def step(self, geometry, positions, quaternions, free_flight=None):
-        """Predict the poses of frame t+1.
+    def step(self, geometry, positions, quaternions, free_flight=None, velocities=None):
+        """Predict the poses of frame t+1: `predict`'s positions (O, 3) and quaternions (O, 4)."""
+        return self.predict(geometry, positions, quaternions, free_flight, velocities)[:2]
+
+    @torch.no_grad()
+    def predict(self, geometry, positions, quaternions, free_flight=None, velocities=None):
+        """Predict frame t+1.
 
         positions (3, O, 3), quaternions (3, O, 4): frames t−1, t, t+1; frame t+1 is read for
-        static objects only. Returns next positions (O, 3) and quaternions (O, 4), float64,
-        with static objects taken from frame t+1.
-
+            static objects only; frame t−1 of dynamic objects only by a positions-state model,
+            or to estimate velocities that are not given.
+        velocities : None, or (linear (O, 3) m/s, angular (O, 3) rad/s) at frame t, read by a
+            velocities-state model.
         free_flight : None, or gravity · dt² (3,) in metres per step²: a dynamic object with no
             face within the collision radius of another object's face has no edge to anything
-            outside itself, so physics leaves one answer for it, free flight
-            (`free_flight_poses`), which is then used instead of the network's; when no object
-            touches anything the network is not run.
+            outside itself, so physics leaves one answer for it, free flight, which is then
+            used instead of the network's; when no object touches anything the network is
+            not run.
+
+        Returns next positions (O, 3), quaternions (O, 4), and for a velocities-state model the
+        next linear and angular velocities (O, 3) in m/s and rad/s (None, None otherwise), all
+        float64, with static objects' poses taken from frame t+1.
         """
-        scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph)
-        flying = None
+        step_velocities = self.step_velocities(positions, quaternions, velocities) if self.config.uses_velocities else None
+        scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph, step_velocities)
+        flying = np.zeros(geometry.num_objects, bool)
         if free_flight is not None:
             flying = ~geometry.static & ~scene_graph.touching
-            flown = free_flight_poses(positions[:2], quaternions[:2], free_flight)
-            if np.array_equal(flying, ~geometry.static):  # nothing touches anything
-                return (np.where(flying[:, None], flown[0], positions[2]).astype(np.float64),
-                        np.where(flying[:, None], flown[1], quaternions[2]).astype(np.float64))
+        if free_flight is not None and np.array_equal(flying, ~geometry.static):  # nothing touches anything
+            predicted = self._standing_still(positions[2], quaternions[2])
+        else:
+            predicted = self._network_prediction(geometry, scene_graph, positions[2], quaternions[2])
+        if flying.any():
+            flown = self._free_flight(positions, quaternions, step_velocities, free_flight)
+            for values, flown_values in zip(predicted, flown):
+                if values is not None:
+                    values[flying] = flown_values[flying]
+        return self._physical(predicted)
+
+    def _network_prediction(self, geometry, scene_graph, static_positions, static_quaternions):
+        """[positions, quaternions, linear, angular] at t+1 (velocities per step, or None)."""
         device = next(self.parameters()).device
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
         previous, now = scene_graph.dynamic_vertex_positions[:2]
-        next_vertices = self.postprocess(normalized, previous, now)
-        next_positions, next_quaternions = rigid_poses_from_vertices(geometry, next_vertices, positions[2], quaternions[2])
-        if flying is not None:
-            next_positions[flying], next_quaternions[flying] = flown[0][flying], flown[1][flying]
-        return next_positions, next_quaternions
+        next_vertices, next_vertex_velocities = self.postprocess(normalized, previous, now)
+        positions, quaternions = rigid_poses_from_vertices(geometry, next_vertices, static_positions, static_quaternions)
+        if not self.config.uses_velocities:
+            return [positions, quaternions, None, None]
+        return [positions, quaternions, *rigid_velocities_from_vertices(geometry, next_vertices, next_vertex_velocities, positions)]
+
+    def _standing_still(self, positions, quaternions):
+        """The same list as `_network_prediction` for objects kept at the given poses."""
+        state = [np.array(positions, np.float64), np.array(quaternions, np.float64)]
+        return state + ([np.zeros_like(state[0]), np.zeros_like(state[0])] if self.config.uses_velocities else [None, None])
+
+    def _free_flight(self, positions, quaternions, step_velocities, gravity_step):
+        if step_velocities is None:
+            return (*free_flight_poses(positions[:2], quaternions[:2], gravity_step), None, None)
+        return free_flight_state(positions[1], quaternions[1], *step_velocities, gravity_step)
+
+    def _physical(self, state):
+        """Velocities per step -> m/s and rad/s (a tuple of four; None, None for a positions state)."""
+        positions, quaternions, linear, angular = state
+        if linear is None:
+            return positions, quaternions, None, None
+        return positions, quaternions, linear / self.config.dt, angular / self.config.dt
+
+
+def acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None):
+    """The raw targets that `integrate` turns back into x_{t+1} (and u_{t+1}).
+
+    All (n, 3); the vertex velocity is u_t = x_t − x_{t−1} (module docstring).
+    returns (n, 3) a_x = x_{t+1} − x_t − u_t, or (n, 6) [a_x, a_u = u_{t+1} − u_t] when
+    next_vertex_velocities is given; float64
+    """
+    velocity = np.asarray(vertices_now, np.float64) - vertices_previous
+    position_part = np.asarray(next_vertices, np.float64) - vertices_now - velocity
+    if next_vertex_velocities is None:
+        return position_part
+    return np.concatenate([position_part, np.asarray(next_vertex_velocities, np.float64) - velocity], axis=1)
+
+
+def integrate(acceleration, vertices_previous, vertices_now):
+    """x_{t+1} = x_t + u_t + a_x, and u_{t+1} = u_t + a_u when the acceleration has 6 columns.
+
+    acceleration : (n, 3) or (n, 6); vertices : (n, 3). Returns x_{t+1} and u_{t+1} or None.
+    """
+    velocity = np.asarray(vertices_now, np.float64) - vertices_previous
+    next_vertices = vertices_now + velocity + acceleration[:, :3]
+    if acceleration.shape[1] == 3:
+        return next_vertices, None
+    return next_vertices, velocity + acceleration[:, 3:]
 
 
 def free_flight_poses(positions, quaternions, acceleration):
@@ -165,6 +294,64 @@ def free_flight_poses(positions, quaternions, acceleration):
     next_positions = 2.0 * positions[1] - positions[0] + np.asarray(acceleration, np.float64)
     turn = quat_multiply(quaternions[1], quat_conjugate(quaternions[0]))
     return next_positions, quat_normalize(quat_multiply(turn, quaternions[1]))
+
+
+def finite_difference_step_velocities(positions, quaternions):
+    """(2, O, 3), (2, O, 4) frames t−1, t -> linear (O, 3) metres per step and angular (O, 3)
+    radians per step: x_t − x_{t−1} and the rotation vector of q_t ⊗ q_{t−1}⁻¹."""
+    from fignetctl.core.transforms import quat_to_rotation_vector
+
+    positions = np.asarray(positions, np.float64)
+    quaternions = np.asarray(quaternions, np.float64)
+    turn = quat_multiply(quaternions[1], quat_conjugate(quaternions[0]))
+    return positions[1] - positions[0], quat_to_rotation_vector(turn)
+
+
+def free_flight_state(positions, quaternions, linear, angular, acceleration):
+    """The state at t+1 of rigid bodies in free flight, from their state at t: the centre on
+    its parabola, the spin constant (as `free_flight_poses`).
+
+    positions (O, 3), quaternions (O, 4) at t; linear (O, 3) metres per step, angular (O, 3)
+    radians per step; acceleration (3,) metres per step² (gravity · dt²)
+    returns positions, quaternions, linear, angular at t+1 (per step), float64
+    """
+    acceleration = np.asarray(acceleration, np.float64)
+    linear = np.asarray(linear, np.float64)
+    angular = np.asarray(angular, np.float64)
+    next_positions = np.asarray(positions, np.float64) + linear + 0.5 * acceleration
+    next_quaternions = quat_normalize(quat_multiply(quat_from_rotation_vector(angular), quaternions))
+    return next_positions, next_quaternions, linear + acceleration, angular.copy()
+
+
+def rigid_velocities_from_vertices(geometry, dynamic_vertex_positions, dynamic_vertex_velocities, centres):
+    """The rigid velocity field closest to each dynamic object's predicted vertex velocities.
+
+    For object o with centre c and vertices x_i moving at u_i, (v, ω) minimises
+    Σ_i |v + ω × (x_i − c) − u_i|² (a 6 × 6 linear least-squares problem per object).
+
+    dynamic_vertex_positions, dynamic_vertex_velocities : (Vd, 3), rows of geometry.dynamic_vertices
+    centres : (O, 3) the objects' centres at the same time
+    returns linear (O, 3), angular (O, 3) float64 in the units of the velocities (zero for static objects)
+    """
+    linear = np.zeros((geometry.num_objects, 3))
+    angular = np.zeros((geometry.num_objects, 3))
+    owner = geometry.vertex_object[geometry.dynamic_vertices]
+    for obj in np.flatnonzero(~geometry.static):
+        rows = owner == obj
+        offsets = dynamic_vertex_positions[rows] - centres[obj]
+        design = np.zeros((len(offsets), 3, 6))
+        design[:, :, :3] = np.eye(3)
+        design[:, :, 3:] = -_cross_matrices(offsets)  # ω × r = −[r]× ω
+        solution, *_ = np.linalg.lstsq(design.reshape(-1, 6), dynamic_vertex_velocities[rows].reshape(-1), rcond=None)
+        linear[obj], angular[obj] = solution[:3], solution[3:]
+    return linear, angular
+
+
+def _cross_matrices(vectors):
+    """(n, 3) -> (n, 3, 3) [r]×, the matrices with [r]× · w = r × w."""
+    x, y, z = np.asarray(vectors, np.float64).T
+    zero = np.zeros_like(x)
+    return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(-1, 3, 3)
 
 
 def rigid_poses_from_vertices(geometry, dynamic_vertex_positions, static_positions, static_quaternions):

@@ -5,9 +5,14 @@ it), jitters the pose of every dynamic object at t (noise.py), builds each graph
 regresses the normalised accelerations of the dynamic mesh nodes with an MSE loss. Adam with a
 learning rate decaying exponentially from `learning_rate_initial` to `learning_rate_final`.
 
-Everything random comes from one numpy Generator (data) and one torch Generator (noise) whose
-states are saved with the weights, so a run resumed from a checkpoint reaches the same weights
-as one that never stopped.
+Throughput: the batches are built in worker processes (`TrainingBatches` behind a torch
+DataLoader) while the training process runs the network, and the network runs in bfloat16
+mixed precision where the processor does bfloat16 matrix products natively
+(`TrainingConfig.precision`); docs/simulator.md has the measured samples per second.
+
+Everything random in batch k comes from generators seeded with (seed, rank, k), so a batch is
+the same whichever process builds it and whenever, and a run resumed from a checkpoint reaches
+the same weights as one that never stopped.
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import sample_rigid_pose_noise
 from fignetctl.core.model.properties import property_ranges, ranges_to_json
-from fignetctl.core.model.scene_graph import build_scene_graph
-from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_file
-from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
+from fignetctl.core.trajectory import read_trajectories
 from fignetctl.core.transforms import quat_from_axis_angle, quat_multiply
 from fignetctl.errors import FignetError
 
@@ -63,6 +69,10 @@ class TrainingConfig:
     checkpoint_every: int = 500
     """Steps between checkpoints."""
     seed: int = 0
+    precision: str = "fp32"
+    """'fp32', or 'bf16': the network's forward and backward pass under bfloat16 autocast
+    (weights, optimiser and loss stay float32); 2.1x the samples per second on a CPU with
+    native bfloat16 (docs/simulator.md)."""
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
@@ -74,6 +84,20 @@ def file_sha256(path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def resolve_precision(precision: str, device: str) -> str:
+    """'auto' -> 'bf16' on a CUDA device with bfloat16 or a CPU with native bfloat16
+    instructions (avx512_bf16 or amx_bf16; emulated bfloat16 is slower than float32), else 'fp32'."""
+    if precision != "auto":
+        return precision
+    if str(device).startswith("cuda"):
+        return "bf16" if torch.cuda.is_bf16_supported() else "fp32"
+    try:
+        flags = Path("/proc/cpuinfo").read_text().split()
+    except OSError:
+        return "fp32"
+    return "bf16" if {"avx512_bf16", "amx_bf16"} & set(flags) else "fp32"
 
 
 def learning_rate_factor(step: int, config: TrainingConfig) -> float:
@@ -96,47 +120,106 @@ def jitter_frame_t(positions, quaternions, static, generator, config: TrainingCo
     return positions, quaternions
 
 
-def training_example(simulator, scene, frame, generator, config: TrainingConfig):
-    """One noisy example: the raw graph and the raw acceleration targets of its dynamic vertices."""
+def jittered_step_velocities(scene, frame, generator, config: TrainingConfig):
+    """Linear and angular velocities (O, 3) at `frame` in metres and radians per step, with
+    per-object noise of the pose noise's standard deviations (none on static objects)."""
+    noise = sample_rigid_pose_noise(
+        torch.from_numpy(~scene.geometry.static), config.noise_translation_std, config.noise_rotation_std, generator
+    )
+    linear = scene.velocities[frame] * scene.dt + noise.translations.double().numpy()
+    angular = scene.angular_velocities[frame] * scene.dt + noise.rotation_vectors.double().numpy()
+    return linear, angular
+
+
+def training_example(simulator_config, scene, frame, generator, config: TrainingConfig):
+    """One noisy example: the raw graph and the raw targets of its dynamic vertices, (Vd, 3)
+    accelerations, or (Vd, 6) position and velocity corrections for a velocity state
+    (simulator.py's module docstring)."""
+    geometry = scene.geometry
     clean_positions, clean_quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
-    positions, quaternions = jitter_frame_t(clean_positions, clean_quaternions, scene.geometry.static, generator, config)
-    scene_graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph)
+    positions, quaternions = jitter_frame_t(clean_positions, clean_quaternions, geometry.static, generator, config)
+    velocities = jittered_step_velocities(scene, frame, generator, config) if simulator_config.uses_velocities else None
+    scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
-        after = after + now - scene.geometry.world_vertices(clean_positions[1], clean_quaternions[1], scene.geometry.dynamic_vertices)
-    acceleration = torch.from_numpy((after - 2.0 * now + previous).astype(np.float32))
-    return scene_graph, acceleration
+        after = after + now - geometry.world_vertices(clean_positions[1], clean_quaternions[1], geometry.dynamic_vertices)
+    next_velocities = None
+    if velocities is not None:
+        next_velocities = rigid_point_velocities(
+            geometry.world_vertices(clean_positions[2], clean_quaternions[2], geometry.dynamic_vertices),
+            geometry.vertex_object[geometry.dynamic_vertices], clean_positions[2],
+            scene.velocities[frame + 1] * scene.dt, scene.angular_velocities[frame + 1] * scene.dt)
+    targets = acceleration_targets(after, previous, now, next_velocities)
+    return scene_graph, torch.from_numpy(targets.astype(np.float32))
+
+
+class TrainingBatches(torch.utils.data.Dataset):
+    """Batch k of a run, built from (seed, rank, k) alone: picklable, so DataLoader workers
+    build batches while the training process runs the network."""
+
+    def __init__(self, scenes, simulator_config, config: TrainingConfig, rank: int = 0):
+        self.scenes, self.simulator_config, self.config, self.rank = scenes, simulator_config, config, rank
+
+    def __len__(self) -> int:
+        return self.config.steps
+
+    def __getitem__(self, step: int) -> dict:
+        """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw targets}."""
+        rng = np.random.default_rng([self.config.seed, self.rank, step])
+        noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+        examples = []
+        for _ in range(self.config.batch_size):
+            scene = self.scenes[rng.integers(len(self.scenes))]
+            frame = int(rng.integers(1, scene.positions.shape[0] - 1))  # t−1 and t+1 inside the trajectory
+            examples.append(training_example(self.simulator_config, scene, frame, noise_generator, self.config))
+        return {
+            "graph": batch_graphs([e[0].graph for e in examples]),
+            "rows": _dynamic_rows([e[0] for e in examples]),
+            "targets": torch.cat([e[1] for e in examples]),
+        }
+
+
+def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
+    """Batches start .. stop−1, built by `workers` processes (0: in this one).
+
+    The workers start from a fresh interpreter (forkserver, or spawn where there is none) and
+    are sent the scenes: forking the training process itself can copy a lock another of its
+    threads holds, and the worker then waits for ever (seen under pytest)."""
+    if workers == 0:
+        return (batches[k] for k in range(start, stop))
+    import multiprocessing
+
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    return iter(torch.utils.data.DataLoader(batches, batch_size=None, sampler=range(start, stop), num_workers=workers,
+                                            prefetch_factor=4, multiprocessing_context=multiprocessing.get_context(method)))
 
 
 class Trainer:
-    """Holds the simulator, optimiser and random state; `run` trains to `config.steps`."""
+    """Holds the simulator and optimiser; `run` trains to `config.steps`.
 
-    def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash=""):
+    workers : processes that build batches (0: the training process builds them)
+    """
+
+    def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash="", workers=0):
         self.rank, device = distributed.join_process_group(device)
         simulator.trained_properties = property_ranges((s.geometry.properties, s.geometry.static) for s in scenes)
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)
-        self.device, self.data_hash = device, data_hash
+        self.device, self.data_hash, self.workers = device, data_hash, workers
         self.optimizer = torch.optim.Adam(simulator.parameters(), lr=config.learning_rate_initial)
+        self.batches = TrainingBatches(scenes, simulator.config, config, self.rank)
         self.step = 0
-        self.rng = np.random.default_rng([config.seed, self.rank])
-        self.noise_generator = torch.Generator().manual_seed(config.seed * 1000 + self.rank)
         self.history = []
 
-    def sample(self):
-        """A (scene, frame) pair: frame t has t−1 and t+1 inside the trajectory."""
-        scene = self.scenes[self.rng.integers(len(self.scenes))]
-        return scene, int(self.rng.integers(1, scene.positions.shape[0] - 1))
-
-    def train_step(self) -> float:
-        examples = [training_example(self.simulator, *self.sample(), self.noise_generator, self.config) for _ in range(self.config.batch_size)]
+    def train_step(self, batch=None) -> float:
+        """One optimiser step on `batch` (default: this step's batch, built here)."""
+        batch = self.batches[self.step] if batch is None else batch
         accumulate = self.step < self.config.normalizer_accumulation_steps
-        graph = batch_graphs([e[0].graph for e in examples]).to(self.device)
-        rows = _dynamic_rows([e[0] for e in examples]).to(self.device)
-        targets = torch.cat([e[1] for e in examples]).to(self.device)
-        normalized_targets = self.simulator.inverse_postprocess(targets, accumulate)
-        predictions = self.model(graph, accumulate)[rows]
-        loss = regression_loss(predictions, normalized_targets, self.config)
+        graph = batch["graph"].to(self.device)
+        normalized_targets = self.simulator.normalized_targets(batch["targets"].to(self.device), accumulate)
+        with torch.autocast(torch.device(self.device).type, dtype=torch.bfloat16, enabled=self.config.precision == "bf16"):
+            predictions = self.model(graph, accumulate)[batch["rows"].to(self.device)]
+        loss = regression_loss(predictions.float(), normalized_targets, self.config)
         self._apply(loss)
         return float(loss.detach())
 
@@ -153,8 +236,8 @@ class Trainer:
         steps (and calling `on_checkpoint()` after each checkpoint)."""
         started = time.perf_counter() - (self.history[-1]["seconds"] if self.history else 0.0)
         last_step = self.config.steps if until_step is None else min(until_step, self.config.steps)
-        while self.step < last_step:
-            loss = self.train_step()
+        for batch in batch_stream(self.batches, self.step, last_step, self.workers):
+            loss = self.train_step(batch)
             self.history.append({"step": self.step, "loss": loss, "seconds": time.perf_counter() - started})
             if on_step is not None:
                 on_step(self.step, loss)
@@ -164,27 +247,22 @@ class Trainer:
                     on_checkpoint()
 
     def state(self) -> dict:
-        """Everything a resume needs; the random states of every process, in rank order."""
+        """Everything a resume needs (the batches follow from the step)."""
         return {
             "step": self.step,
             "optimizer": self.optimizer.state_dict(),
-            "rng": json.dumps(distributed.gather_from_all(self.rng.bit_generator.state)),
-            "noise_generator": distributed.gather_from_all(self.noise_generator.get_state()),
+            "world_size": distributed.world_size(),
             "history": json.dumps(self.history),
             "training_config": self.config.to_json(),
             "data_hash": self.data_hash,
         }
 
     def load_state(self, state: dict) -> None:
-        rng_states = json.loads(state["rng"])
-        if len(rng_states) != distributed.world_size():
-            raise FignetError(
-                f"the checkpoint was written by {len(rng_states)} process(es); resume it with as many"
-            )
+        processes = int(state["world_size"]) if "world_size" in state else len(json.loads(state["rng"]))
+        if processes != distributed.world_size():
+            raise FignetError(f"the checkpoint was written by {processes} process(es); resume it with as many")
         self.step = int(state["step"])
         self.optimizer.load_state_dict(state["optimizer"])
-        self.rng.bit_generator.state = rng_states[self.rank]
-        self.noise_generator.set_state(state["noise_generator"][self.rank])
         self.history = json.loads(state["history"])
 
     def save(self, path) -> None:
@@ -214,7 +292,7 @@ def _dynamic_rows(scene_graphs) -> torch.Tensor:
     return torch.cat(rows)
 
 
-def make_trainer(dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None):
+def make_trainer(dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0):
     """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
     or a new run that starts from the weights and normaliser statistics of `init_from`."""
     dataset_path = Path(dataset_path)
@@ -225,16 +303,21 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
             raise FignetError(f"{resume_from}: holds no training state to resume from (an exported model?)")
         if state["data_hash"] != data_hash:
             raise FignetError(f"{resume_from}: was trained on other data than {dataset_path}; start a new run")
-        stored = {"target_keeps_noise": False, **json.loads(state["training_config"])}  # absent: a run before the field
+        stored = {"target_keeps_noise": False, **json.loads(state["training_config"])}  # absent: a run before the field (precision too)
         training_config = TrainingConfig(**{**stored, "steps": training_config.steps})
-    else:
+    data = read_trajectories(dataset_path)
+    if resume_from is None:
+        simulator_config = dataclasses.replace(simulator_config, dt=float(data.dt), gravity=tuple(float(g) for g in data.gravity))
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
         if init_from is not None:
             _load_weights(simulator, init_from)
-    scenes = scenes_from_file(dataset_path, simulator.config, TRAINING_STATIC_REACH)
-    trainer = Trainer(scenes, simulator, training_config, device, data_hash)
+    scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
+    if simulator.config.uses_velocities and not all(scene.velocities_recorded for scene in scenes):
+        raise FignetError(f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "
+                          "model learns from; make it again with `fignetctl make-dataset`")
+    trainer = Trainer(scenes, simulator, training_config, device, data_hash, workers)
     if state is not None:
         trainer.load_state(state)
     return trainer
@@ -251,15 +334,19 @@ def _load_weights(simulator, path) -> None:
                           f"give the same ones ({str(error).splitlines()[0]})") from None
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0, speculative=False) -> SimulatorConfig:
-    """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset."""
+def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0,
+                         speculative=False, state="positions", static_receivers=True) -> SimulatorConfig:
+    """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
+    from fignetctl.core.model.simulator import output_size_for
 
-    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset, speculative=speculative)
+    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset, speculative=speculative,
+                        static_receivers=static_receivers)
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
-    return SimulatorConfig(network=PRESETS[size], graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge)
+    network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state))
+    return SimulatorConfig(network=network, graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge, state=state)
 
 
 def write_loss_csv(path, history) -> None:

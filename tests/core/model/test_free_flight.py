@@ -31,7 +31,7 @@ def untrained_simulator(scene):
     simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"]))
     history = three_frames(scene)
     simulator(build_scene_graph(scene.geometry, *history, simulator.config.graph).graph, accumulate=True)
-    simulator.inverse_postprocess(torch.randn(64, 3, dtype=torch.float32) * 0.01, accumulate=True)
+    simulator.normalized_targets(torch.randn(64, 3, dtype=torch.float32) * 0.01, accumulate=True)
     return simulator.eval()
 
 

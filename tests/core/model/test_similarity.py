@@ -26,6 +26,9 @@ class BallisticSimulator:
         self.dt = dt
         self.sides = []
 
+    def predict(self, geometry, positions, quaternions, free_flight=None, velocities=None):
+        return (*self.step(geometry, positions, quaternions, free_flight), None, None)
+
     def step(self, geometry, positions, quaternions, free_flight=None):
         dynamic = ~geometry.static
         rest = geometry.rest_vertices[np.isin(geometry.vertex_object, np.flatnonzero(dynamic))]

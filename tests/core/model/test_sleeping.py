@@ -21,6 +21,9 @@ class DriftingSimulator:
         self.drift = drift
         self.static_seen = []
 
+    def predict(self, geometry, positions, quaternions, free_flight=None, velocities=None):
+        return (*self.step(geometry, positions, quaternions, free_flight), None, None)
+
     def step(self, geometry, positions, quaternions, free_flight=None):
         static = geometry.static
         self.static_seen.append(static.copy())
@@ -91,6 +94,9 @@ class StillSimulator:
 
     def __init__(self):
         self.static_seen = []
+
+    def predict(self, geometry, positions, quaternions, free_flight=None, velocities=None):
+        return (*self.step(geometry, positions, quaternions, free_flight), None, None)
 
     def step(self, geometry, positions, quaternions, free_flight=None):
         self.static_seen.append(geometry.static.copy())

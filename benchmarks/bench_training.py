@@ -1,0 +1,105 @@
+"""Training throughput: samples (scenes) per second of `fignetctl train`'s loop, side by side.
+
+Each setting trains the same model on the same file from the same start for --steps steps
+after a warm-up (the normaliser statistics are frozen by then, as after step 500 of a real
+run; the batch-building processes have started), and the settings take turns --rounds times
+so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
+the training process, float32, one thread, static receivers: the bundled models' training);
+every other is reported as a ratio to it. The last runs two data-parallel processes under
+torchrun (each its own batch of --batch-size, so twice the samples per step).
+
+    python benchmarks/bench_training.py data/movi-b-train.h5 --steps 20 --rounds 2 \
+        -o benchmarks/results/training-throughput.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+from fignetctl.core.atomic import atomic_path
+from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+
+# name: (state, static receivers, batch builders, precision, torch threads, processes)
+SETTINGS = {
+    "serial (positions, fp32, 1 thread, graphs in the loop)": ("positions", True, 0, "fp32", 1, 1),
+    "velocities, no static receivers": ("velocities", False, 0, "fp32", 1, 1),
+    "+ 1 worker process": ("velocities", False, 1, "fp32", 1, 1),
+    "+ bf16": ("velocities", False, 1, "bf16", 1, 1),
+    "+ 2 threads": ("velocities", False, 1, "bf16", 2, 1),
+    "2 processes (torchrun), bf16, graphs in each": ("velocities", False, 0, "bf16", 1, 2),
+}
+
+
+def measure(path, setting, args) -> float:
+    """Samples per second of one setting over args.steps steps after a warm-up."""
+    if setting[5] > 1:
+        return measure_distributed(path, setting, args)
+    return measure_here(path, setting, args)
+
+
+def measure_here(path, setting, args) -> float:
+    state, static_receivers, workers, precision, threads, processes = setting
+    torch.set_num_threads(threads)
+    simulator = simulator_config_for("fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers)
+    config = TrainingConfig(steps=args.warmup + args.steps, batch_size=args.batch_size, loss="mse", precision=precision,
+                            normalizer_accumulation_steps=args.warmup, checkpoint_every=10**9, seed=args.seed)
+    trainer = make_trainer(path, simulator, config, workers=workers)
+    trainer.run()
+    seconds = trainer.history[-1]["seconds"] - trainer.history[args.warmup - 1]["seconds"]
+    return processes * args.steps * args.batch_size / seconds
+
+
+def measure_distributed(path, setting, args) -> float:
+    """The setting under torchrun; rank 0 prints its rate on the last line."""
+    torchrun = Path(sys.executable).with_name("torchrun")
+    command = [str(torchrun), "--standalone", "--nproc_per_node", str(setting[5]), __file__, path, "--as-rank",
+               json.dumps(setting), *(f"--{k.replace('_', '-')}={v}" for k, v in vars(args).items() if k in ("steps", "warmup", "batch_size", "size", "seed"))]
+    result = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": str(setting[4])}, check=True)
+    return float(result.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data")
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--size", default="small")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("-o", "--output", default=None)
+    parser.add_argument("--as-rank", default=None, help=argparse.SUPPRESS)  # one process of a torchrun setting
+    args = parser.parse_args()
+    if args.as_rank is not None:
+        rate = measure_here(args.data, json.loads(args.as_rank), args)
+        if os.environ.get("RANK", "0") == "0":
+            print(rate)
+        return
+    rates = {name: [] for name in SETTINGS}
+    for _ in range(args.rounds):
+        for name, setting in SETTINGS.items():
+            rates[name].append(measure(args.data, setting, args))
+            print(f"{name}: {rates[name][-1]:.1f} samples/s", flush=True)
+    baseline = statistics.median(rates[next(iter(SETTINGS))])
+    rows = {name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline} for name, r in rates.items()}
+    print(f"\n| setting | samples/s | × serial |\n|---|---|---|")
+    for name, row in rows.items():
+        print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |")
+    if args.output:
+        fields = ("state", "static_receivers", "workers", "precision", "threads", "processes")
+        result = {"data": args.data, "cpus": os.cpu_count(), "settings": {k: dict(zip(fields, v)) for k, v in SETTINGS.items()},
+                  "args": vars(args), "results": rows}
+        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
+            json.dump(result, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

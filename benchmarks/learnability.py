@@ -1,0 +1,84 @@
+"""Learnability: overfit a few movi-b trajectories and measure what the model still cannot
+explain (the fraction of one-step target variance unexplained, FVU, on the very frames it was
+trained on, without noise) and how far its rollout drifts from them.
+
+A model whose FVU stays high on two trajectories after thousands of visits per frame has a
+problem no amount of data fixes (its input, target, loss or size). The issue's bar: FVU <= 10 %
+and a rollout that tracks the training trajectory.
+
+    python benchmarks/learnability.py data/movi-b-train.h5 --trajectories 2 --steps 3000 \
+        -o benchmarks/results/learnability.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import numpy as np
+import torch
+
+from fignetctl.core.atomic import atomic_path
+from fignetctl.core.model.evaluation import errors_at
+from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples, overfit
+from fignetctl.core.model.rollout import rollout
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.model.training import simulator_config_for
+from fignetctl.core.trajectory import read_trajectories
+
+HORIZONS = (1, 10, 50)
+
+
+def rollout_errors(simulator, scenes, horizons=HORIZONS) -> dict:
+    """Translation RMSE (m) and mean rotation error (deg) of the rollouts of the training scenes."""
+    out = {}
+    for steps in horizons:
+        translation, rotation = [], []
+        for scene in scenes:
+            if scene.positions.shape[0] > 1 + steps:
+                positions, quaternions = rollout(simulator, scene, steps)
+                t, r = errors_at(scene, positions, quaternions, steps)
+                translation.append(t)
+                rotation.append(r)
+        if translation:
+            out[f"{steps}_steps"] = {"translation_rmse_m": float(np.sqrt(np.mean(np.concatenate(translation) ** 2))),
+                                     "rotation_error_deg": float(np.mean(np.concatenate(rotation)))}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data")
+    parser.add_argument("--trajectories", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--batch-size", type=int, default=4)
+    parser.add_argument("--size", default="small")
+    parser.add_argument("--state", default="velocities", choices=["velocities", "positions"])
+    parser.add_argument("--loss", default="mse", choices=["mse", "huber"])
+    parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
+    parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("-o", "--output", default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    data = read_trajectories(args.data)
+    data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
+    config = simulator_config_for("fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False)
+    scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
+    started = time.perf_counter()
+    trainer = overfit(config, scenes, args.steps, args.batch_size, tuple(args.learning_rate), args.loss, args.precision, args.seed)
+    seconds = time.perf_counter() - started
+    simulator = trainer.simulator.eval()
+    fvu = fraction_unexplained(simulator, one_step_examples(simulator, scenes))
+    result = {"args": vars(args), "train_seconds": seconds, "fraction_unexplained": fvu,
+              "rollout": rollout_errors(simulator, scenes), "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]]))}
+    print(json.dumps({k: result[k] for k in ("fraction_unexplained", "rollout", "final_loss", "train_seconds")}, indent=1))
+    if args.output:
+        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
+            json.dump(result, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,78 @@
+"""How much of the one-step targets a model explains: the learnability measure.
+
+A simulator that cannot fit the frames it was trained on cannot roll them out either. The
+fraction of the target variance left unexplained,
+
+    FVU = Σ (prediction − target)² / Σ (target − mean target)²
+
+over every dynamic vertex of every frame t of the given scenes (no training noise), with the
+targets and predictions in the model's normalised units, is 1 for a model that predicts the
+mean and 0 for a perfect one. benchmarks/learnability.py overfits two movi-b trajectories and
+reports it; the suite asserts it on seconds-long cases.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import torch
+
+from fignetctl.core.model.graph import batch_graphs
+
+
+def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
+    """Noise-free (graph, targets) of frames t of the scenes: all frames with t−1 and t+1
+    inside the trajectory, or `frames_per_scene` drawn from them."""
+    from fignetctl.core.model.training import TrainingConfig, training_example
+
+    clean = TrainingConfig(noise_translation_std=0.0, noise_rotation_std=0.0)
+    rng = np.random.default_rng(seed)
+    generator = torch.Generator().manual_seed(seed)
+    examples = []
+    for scene in scenes:
+        frames = np.arange(1, scene.positions.shape[0] - 1)
+        if frames_per_scene is not None and frames_per_scene < len(frames):
+            frames = np.sort(rng.choice(frames, frames_per_scene, replace=False))
+        examples += [training_example(simulator.config, scene, int(frame), generator, clean) for frame in frames]
+    return examples
+
+
+@torch.no_grad()
+def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
+    """{"all": FVU over every component, "position": over a_x, "velocity": over a_u (velocity
+    state only), "per_component": [...]} of a model on one_step_examples."""
+    predictions, targets = [], []
+    for start in range(0, len(examples), batch_size):
+        chunk = examples[start : start + batch_size]
+        graph = batch_graphs([scene_graph.graph for scene_graph, _ in chunk])
+        rows, offset = [], 0
+        for scene_graph, _ in chunk:
+            rows.append(torch.arange(scene_graph.num_dynamic_vertex_nodes) + offset)
+            offset += scene_graph.graph.num_nodes
+        predictions.append(simulator(graph)[torch.cat(rows)])
+        targets.append(simulator.normalized_targets(torch.cat([t for _, t in chunk]), accumulate=False))
+    prediction, target = torch.cat(predictions).double(), torch.cat(targets).double()
+    residual = ((prediction - target) ** 2).sum(0)
+    spread = ((target - target.mean(0)) ** 2).sum(0)
+    result = {"all": float(residual.sum() / spread.sum()), "position": float(residual[:3].sum() / spread[:3].sum()),
+              "per_component": (residual / spread.clamp(min=1e-300)).tolist(), "vertices": int(target.shape[0])}
+    if target.shape[1] == 6:
+        result["velocity"] = float(residual[3:].sum() / spread[3:].sum())
+    return result
+
+
+def overfit(simulator_config, scenes, steps, batch_size=4, learning_rate=(1e-3, 1e-4), loss="mse", precision="fp32", seed=0):
+    """A Trainer that has fitted `scenes` for `steps` without noise (the learnability test)."""
+    from fignetctl.core.model.simulator import LearnedSimulator
+    from fignetctl.core.model.training import Trainer, TrainingConfig
+
+    config = TrainingConfig(steps=steps, batch_size=batch_size, learning_rate_initial=learning_rate[0], learning_rate_final=learning_rate[1],
+                            noise_translation_std=0.0, noise_rotation_std=0.0, loss=loss, precision=precision,
+                            normalizer_accumulation_steps=min(200, steps), checkpoint_every=10**9, seed=seed)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        simulator = LearnedSimulator(dataclasses.replace(simulator_config, dt=scenes[0].dt))
+    trainer = Trainer(scenes, simulator, config)
+    trainer.run()
+    return trainer

@@ -1,0 +1,54 @@
+"""Learnability in seconds: a velocity-state model overfits a box dropped on the floor and two
+boxes colliding (PyBullet, MOVi-B's settings, 30 fps) until it explains most of the one-step
+target variance of the very frames it trained on (benchmarks/learnability.py is the long
+version on movi-b trajectories)."""
+
+import numpy as np
+import pytest
+import torch
+
+from fignetctl.core import movi
+from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples, overfit
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.model.training import simulator_config_for
+from fignetctl.core.shapes import ShapeAsset
+
+CONFIG = simulator_config_for("fignet-star", "tiny", 0.2, state="velocities", static_receivers=False)
+# measured with 800 steps: 0.087 (one box), 0.040 (two boxes); an untrained model or a broken
+# target leaves about 1.0
+MOST_UNEXPLAINED = 0.2
+
+
+def cube_scene(count, seed, spawn_region):
+    """One 1 s trajectory of `count` rubber unit cubes tossed in `spawn_region`, as a TrajectoryFile."""
+    import trimesh
+
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    asset = ShapeAsset(name="cube", vertices=np.asarray(box.vertices, np.float32), faces=np.asarray(box.faces, np.int32),
+                       convex_parts=(np.asarray(box.vertices, np.float32),), source="test")
+    config = movi.movi_config("movi-b", duration=1.0, num_objects=(count, count), spawn_region=spawn_region,
+                              materials=(movi.RUBBER,), scale_range=(1.0, 1.0))
+    return movi.dataset_file(list(movi.generate([asset], config, seed, range(1))), [asset], config, 1, {})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("count, seed, region", [
+    (1, 0, ((-0.5, -0.5, 1.0), (0.5, 0.5, 2.0))),  # dropped: falls, bounces, slides, comes to rest
+    (2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5))),  # tossed at each other: they collide at frame 12
+])
+def test_a_model_overfits_a_few_boxes_to_most_of_the_one_step_variance(count, seed, region):
+    torch.set_num_threads(1)
+    data = cube_scene(count, seed, region)
+    trajectory = next(iter(data.trajectories.values()))
+    assert trajectory.velocities is not None and np.all(trajectory.positions[:, 1:, 2] < 2.5)
+    if count == 2:
+        assert np.linalg.norm(trajectory.positions[:, 1] - trajectory.positions[:, 2], axis=1).min() < 1.2  # in contact
+    scenes = scenes_from_data(data, CONFIG, TRAINING_STATIC_REACH)
+    trainer = overfit(CONFIG, scenes, steps=800, batch_size=4, learning_rate=(3e-3, 3e-4))
+    simulator = trainer.simulator.eval()
+    untrained = overfit(CONFIG, scenes, steps=1, batch_size=4).simulator.eval()
+    examples = one_step_examples(simulator, scenes)
+    assert fraction_unexplained(untrained, examples)["all"] > 0.5
+    explained = fraction_unexplained(simulator, examples)
+    assert explained["all"] < MOST_UNEXPLAINED
+    assert explained["position"] < MOST_UNEXPLAINED and explained["velocity"] < MOST_UNEXPLAINED

@@ -1,0 +1,264 @@
+"""The velocity state: trajectories with instantaneous velocities, the graph's velocity feature,
+exact inverses between targets and integration, rigid velocity fits, free flight and rollouts
+that carry their velocities."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from fignetctl.core.model.network import PRESETS
+from fignetctl.core.model.rollout import rollout
+from fignetctl.core.model.scene_data import scene_from_trajectory
+from fignetctl.core.model.scene_graph import GraphConfig, build_scene_graph, rigid_point_velocities
+from fignetctl.core.model.simulator import (
+    LearnedSimulator,
+    SimulatorConfig,
+    acceleration_targets,
+    free_flight_state,
+    integrate,
+    rigid_velocities_from_vertices,
+)
+from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+from fignetctl.core.trajectory import estimated_velocities, read_trajectories, write_trajectories
+from fignetctl.core.transforms import quat_from_rotation_vector, quat_multiply, quat_to_rotation_vector
+from fignetctl.errors import FignetError, FormatError
+from tests.conftest import box_drop_file
+
+VELOCITY_TINY = dataclasses.replace(
+    simulator_config_for("fignet-star", "tiny", 0.1, state="velocities", static_receivers=False), dt=1 / 60, gravity=(0.0, 0.0, -10.0)
+)
+
+
+def random_rigid_motion(rng, count):
+    """Centres (O, 3), linear and angular velocities (O, 3) and points (P, 3) with their objects (P,)."""
+    centres = rng.normal(size=(count, 3))
+    linear, angular = rng.normal(size=(count, 3)), rng.normal(size=(count, 3))
+    owner = np.repeat(np.arange(count), 12)
+    points = centres[owner] + rng.normal(size=(len(owner), 3))
+    return centres, linear, angular, owner, points
+
+
+def test_version_2_round_trip_keeps_velocities_and_version_1_reads_without(tmp_path, box_drop):
+    path = write_trajectories(tmp_path / "v2.h5", box_drop)
+    back = read_trajectories(path).trajectories["00000"]
+    np.testing.assert_array_equal(back.velocities, box_drop.trajectories["00000"].velocities)
+    np.testing.assert_array_equal(back.angular_velocities, box_drop.trajectories["00000"].angular_velocities)
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        assert f.attrs["format_version"] == 2
+    plain = dataclasses.replace(box_drop.trajectories["00000"], velocities=None, angular_velocities=None)
+    path = write_trajectories(tmp_path / "plain.h5", dataclasses.replace(box_drop, trajectories={"00000": plain}))
+    with h5py.File(path, "r+") as f:
+        f.attrs["format_version"] = 1
+    assert not read_trajectories(path).trajectories["00000"].has_velocities
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda t: dataclasses.replace(t, angular_velocities=None), "give both or neither"),
+    (lambda t: dataclasses.replace(t, velocities=t.velocities[:2]), "must be float"),
+    (lambda t: dataclasses.replace(t, velocities=np.where(np.arange(3)[:, None, None] == 2, np.nan, t.velocities)), "not finite at frame 2"),
+])
+def test_damaged_velocities_are_refused(tmp_path, box_drop, change, message):
+    broken = change(box_drop.trajectories["00000"])
+    with pytest.raises(FormatError, match=message):
+        write_trajectories(tmp_path / "x.h5", dataclasses.replace(box_drop, trajectories={"00000": broken}))
+
+
+def test_estimated_velocities_are_exact_for_constant_velocity_and_spin():
+    dt, steps = 0.05, 6
+    linear, spin = np.array([0.3, -1.0, 2.0]), np.array([0.5, 1.5, -2.0])
+    times = np.arange(steps) * dt
+    positions = (times[:, None] * linear)[:, None]
+    quaternions = quat_from_rotation_vector(times[:, None] * spin)[:, None]
+    velocities, angular = estimated_velocities(positions, quaternions, dt)
+    np.testing.assert_allclose(velocities[:, 0], np.tile(linear, (steps, 1)), atol=1e-12)
+    np.testing.assert_allclose(angular[:, 0], np.tile(spin, (steps, 1)), atol=1e-9)
+
+
+def test_rotation_vector_round_trip():
+    vectors = np.random.default_rng(0).normal(size=(50, 3))
+    vectors *= np.minimum(1.0, 3.0 / np.linalg.norm(vectors, axis=1))[:, None]  # inside the short way round
+    np.testing.assert_allclose(quat_to_rotation_vector(quat_from_rotation_vector(vectors)), vectors, atol=1e-12)
+
+
+def test_targets_and_integration_are_exact_inverses():
+    rng = np.random.default_rng(1)
+    previous, now, after, next_velocity = rng.normal(size=(4, 20, 3))
+    for velocities in (None, next_velocity):
+        targets = acceleration_targets(after, previous, now, velocities)
+        assert targets.shape == (20, 3 if velocities is None else 6)
+        next_vertices, next_velocities = integrate(targets, previous, now)
+        np.testing.assert_allclose(next_vertices, after, atol=1e-12)
+        if velocities is not None:
+            np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-12)
+
+
+def test_postprocess_undoes_inverse_postprocess():
+    simulator = LearnedSimulator(VELOCITY_TINY)
+    rng = np.random.default_rng(2)
+    previous, now, after, next_velocity = rng.normal(scale=0.1, size=(4, 30, 3))
+    normalized = simulator.inverse_postprocess(after, previous, now, next_velocity, accumulate=True)
+    next_vertices, next_velocities = simulator.postprocess(normalized, previous, now)
+    np.testing.assert_allclose(next_vertices, after, atol=1e-6)  # float32 targets
+    np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-6)
+
+
+def test_rigid_velocity_fit_recovers_the_motion_of_each_object():
+    rng = np.random.default_rng(3)
+    data = box_drop_file(frames=3)
+    scene = scene_from_trajectory(data, "00000", SimulatorConfig())
+    geometry = scene.geometry
+    centres = scene.positions[1]
+    vertices = geometry.world_vertices(centres, scene.quaternions[1], geometry.dynamic_vertices)
+    linear, angular = rng.normal(size=(2, 2, 3))
+    owner = geometry.vertex_object[geometry.dynamic_vertices]
+    velocities = rigid_point_velocities(vertices, owner, centres, linear, angular)
+    fitted = rigid_velocities_from_vertices(geometry, vertices, velocities, centres)
+    np.testing.assert_allclose(fitted[0][1], linear[1], atol=1e-12)
+    np.testing.assert_allclose(fitted[1][1], angular[1], atol=1e-12)
+    np.testing.assert_array_equal(fitted[0][0], 0.0)  # the static floor
+
+
+def test_free_flight_state_follows_the_parabola_and_the_spin():
+    gravity = np.array([0.0, 0.0, -10.0]) * 0.1**2
+    position, quaternion = np.array([[1.0, 2.0, 3.0]]), np.array([[1.0, 0.0, 0.0, 0.0]])
+    linear, angular = np.array([[0.1, 0.0, 0.2]]), np.array([[0.0, 0.3, 0.0]])
+    state = (position, quaternion, linear, angular)
+    for _ in range(7):
+        state = free_flight_state(*state, gravity)
+    np.testing.assert_allclose(state[0][0], position[0] + 7 * linear[0] + 0.5 * 49 * gravity, atol=1e-12)
+    np.testing.assert_allclose(state[2][0], linear[0] + 7 * gravity, atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotation_vector(state[1])[0], 7 * angular[0], atol=1e-12)
+
+
+def test_the_graphs_velocity_feature_is_the_instantaneous_velocity():
+    data = box_drop_file(frames=3)
+    scene = scene_from_trajectory(data, "00000", SimulatorConfig())
+    geometry, dt = scene.geometry, scene.dt
+    velocities = (scene.velocities[1] * dt, scene.angular_velocities[1] * dt)
+    graph = build_scene_graph(geometry, scene.positions, scene.quaternions, GraphConfig(0.1), velocities)
+    vertices = geometry.world_vertices(scene.positions[1], scene.quaternions[1], geometry.dynamic_vertices)
+    expected = rigid_point_velocities(vertices, geometry.vertex_object[geometry.dynamic_vertices], scene.positions[1], *velocities)
+    features = graph.graph.node_features.numpy()
+    np.testing.assert_allclose(features[: len(expected), :3], expected, atol=1e-6)
+    object_node = graph.graph.num_nodes - 1
+    np.testing.assert_allclose(features[object_node, :3], velocities[0][1], atol=1e-6)
+    finite_difference = build_scene_graph(geometry, scene.positions, scene.quaternions, GraphConfig(0.1)).graph.node_features.numpy()
+    assert np.abs(finite_difference[: len(expected), :3] - expected).max() > 1e-3  # the falling box: they differ by g·dt/2
+
+
+def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
+    torch.manual_seed(0)
+    simulator = LearnedSimulator(VELOCITY_TINY).eval()
+    scene = scene_from_trajectory(box_drop_file(frames=3, height=0.6), "00000", SimulatorConfig())
+    velocities = (scene.velocities[1], scene.angular_velocities[1])
+    simulator.inverse_postprocess(np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True)
+    build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph)  # warm the caches alike
+    simulator(build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph,
+                                tuple(v * scene.dt for v in velocities)).graph, accumulate=True)
+    first = simulator.predict(scene.geometry, scene.positions, scene.quaternions, velocities=velocities)
+    shift = np.array([1000.0, -2000.0, 0.0])
+    moved = simulator.predict(scene.geometry, scene.positions + shift, scene.quaternions, velocities=velocities)
+    np.testing.assert_allclose(moved[0] - shift, first[0], atol=1e-6)
+    np.testing.assert_allclose(moved[2], first[2], atol=1e-6)
+    np.testing.assert_allclose(moved[3], first[3], atol=1e-6)
+
+
+def test_a_velocity_model_learns_free_fall_and_its_rollout_carries_velocities(tmp_path):
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=30, height=8.0))
+    config = TrainingConfig(steps=300, batch_size=2, noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20)
+    trainer = make_trainer(path, VELOCITY_TINY, config)
+    trainer.run()
+    simulator = trainer.simulator.eval()
+    scene = trainer.scenes[0]
+    positions, quaternions, velocities, angular = rollout(simulator, scene, 20, with_velocities=True)
+    assert velocities.shape == angular.shape == (22, 2, 3)
+    np.testing.assert_allclose(positions[:, 1], scene.positions[:22, 1], atol=0.02)  # the exact fall, 6.7 m of it
+    np.testing.assert_allclose(velocities[:, 1], scene.velocities[:22, 1], atol=0.15)  # 6.3 m/s at the end
+    np.testing.assert_allclose(angular[:, 1], scene.angular_velocities[:22, 1], atol=0.15)
+
+
+def test_batches_are_the_same_whichever_process_builds_them(tmp_path):
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    config = TrainingConfig(steps=4, batch_size=2)
+    here = make_trainer(path, VELOCITY_TINY, config, workers=0)
+    there = make_trainer(path, VELOCITY_TINY, config, workers=1)
+    here.run()
+    there.run()
+    for name, value in here.simulator.state_dict().items():
+        torch.testing.assert_close(there.simulator.state_dict()[name], value, rtol=0, atol=0)
+
+
+def test_each_process_of_a_data_parallel_run_draws_its_own_batches(tmp_path):
+    from fignetctl.core.model.training import TrainingBatches
+
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=40))
+    scenes = make_trainer(path, VELOCITY_TINY, TrainingConfig(steps=1)).scenes
+    config = TrainingConfig(steps=2, batch_size=1)
+    first, again, other = (TrainingBatches(scenes, VELOCITY_TINY, config, rank)[1]["targets"] for rank in (0, 0, 1))
+    torch.testing.assert_close(first, again, rtol=0, atol=0)
+    assert not torch.equal(first, other)
+
+
+def test_velocity_training_needs_recorded_velocities(tmp_path):
+    data = box_drop_file(frames=12)
+    plain = dataclasses.replace(data.trajectories["00000"], velocities=None, angular_velocities=None)
+    path = write_trajectories(tmp_path / "plain.h5", dataclasses.replace(data, trajectories={"00000": plain}))
+    with pytest.raises(FignetError, match="no recorded velocities"):
+        make_trainer(path, VELOCITY_TINY, TrainingConfig(steps=1))
+
+
+def test_a_positions_state_is_still_trained_and_stepped(tmp_path):
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    positions_config = dataclasses.replace(VELOCITY_TINY, state="positions", network=PRESETS["tiny"])
+    trainer = make_trainer(path, positions_config, TrainingConfig(steps=2, batch_size=2))
+    trainer.run()
+    out = rollout(trainer.simulator.eval(), trainer.scenes[0], 3, with_velocities=True)
+    assert out[2] is None and np.isfinite(out[0]).all()
+
+
+def test_a_state_and_an_output_size_that_disagree_are_refused():
+    with pytest.raises(ValueError, match="decodes 6 numbers"):
+        SimulatorConfig(state="velocities")
+
+
+@pytest.fixture(scope="module")
+def velocity_model(tmp_path_factory):
+    """A velocity-state model file trained for a few steps on a 60 fps box drop, and the data."""
+    folder = tmp_path_factory.mktemp("velocity")
+    data = write_trajectories(folder / "box.h5", box_drop_file(frames=40, height=20.0))
+    trainer = make_trainer(data, VELOCITY_TINY, TrainingConfig(steps=3, batch_size=2))
+    trainer.run(folder / "model.pt")
+    return folder / "model.pt", data
+
+
+@pytest.mark.parametrize("scale", [1.0, 4.0])
+def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated_size(velocity_model, tmp_path, scale):
+    from fignetctl.core.model.checkpoint import load_checkpoint
+    from fignetctl.core.model.runs import rollout_file
+
+    model, data = velocity_model
+    result = rollout_file(load_checkpoint(model), data, None, 12, sim_scale=scale, free_flight=True)
+    assert result.dt == pytest.approx((1 / 60) / scale**0.5)
+    box = result.trajectories["00000"]
+    times = 1 / 60 + np.arange(-1, 13) * result.dt  # frame 1 is at 1/60 s; frame 0 re-timed to one step before
+    np.testing.assert_allclose(box.positions[1:, 1, 2], 20.0 - 5.0 * times[1:] ** 2, atol=1e-4)  # free flight, exact
+    np.testing.assert_allclose(box.velocities[1:, 1, 2], -10.0 * times[1:], atol=1e-4)
+    np.testing.assert_allclose(box.angular_velocities[1:, 1], np.tile(box_drop_file().trajectories["00000"].angular_velocities[0, 1], (13, 1)), atol=1e-5)
+
+
+def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refuses_another(velocity_model, tmp_path):
+    from fignetctl.core.model.checkpoint import load_checkpoint
+    from fignetctl.core.model.runs import rollout_file
+
+    model, _ = velocity_model
+    at_30_fps = write_trajectories(tmp_path / "30fps.h5", box_drop_file(frames=3, dt=1 / 30, height=20.0))
+    result = rollout_file(load_checkpoint(model), at_30_fps, None, 4, free_flight=True)
+    assert result.dt == pytest.approx(1 / 60)
+    positions_model = load_checkpoint(model)
+    positions_model.config = dataclasses.replace(positions_model.config, state="positions", network=PRESETS["tiny"])
+    with pytest.raises(FignetError, match="give the scene at dt = 0.0166667"):
+        rollout_file(positions_model, at_30_fps, None, 4)

@@ -15,8 +15,7 @@ import json
 import numpy as np
 
 from fignetctl.core.model.checkpoint import load_checkpoint
-from fignetctl.core.model.rollout import RolloutError, rollout
-from fignetctl.core.model.runs import free_flight_acceleration, sleep_settings
+from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
 
@@ -61,8 +60,7 @@ def main():
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
     data = read_trajectories(args.data)
-    options = {"free_flight": free_flight_acceleration(data) if args.free_flight else None,
-               "keep_out": args.keep_out, "sleep": sleep_settings(data) if args.sleep else None}
+    options = {"guards": guards_for(data.dt, data.gravity, args.sleep, args.free_flight, args.keep_out)}
     cache = {}
     rows = []
     for key in list(data.trajectories)[: args.n]:

@@ -117,15 +117,14 @@ def summarize_errors(records):
     }
 
 
-def method_rollouts(simulator, scene, num_steps, gravity, dt, sleep=None, free_flight=None, keep_out=False, guarded=None):
-    """name -> (positions, quaternions) for the model (sleeping with SleepSettings `sleep`, free
-    flight with gravity · dt² `free_flight`, `keep_out` of static meshes: rollout.rollout), the
-    model with the guards `guarded` (a dict of those three, or None: not run) and both baselines."""
-    from fignetctl.core.model.rollout import rollout
+def method_rollouts(simulator, scene, num_steps, gravity, dt, guards=None, guarded=None):
+    """name -> (positions, quaternions) for the model (with rollout.Guards `guards`, None: the
+    network alone), the model with the Guards `guarded` (None: not run) and both baselines."""
+    from fignetctl.core.model.rollout import Guards, rollout
 
-    rollouts = {"model": rollout(simulator, scene, num_steps, sleep=sleep, free_flight=free_flight, keep_out=keep_out)}
+    rollouts = {"model": rollout(simulator, scene, num_steps, guards=guards or Guards())}
     if guarded is not None:
-        rollouts["model_with_guards"] = rollout(simulator, scene, num_steps, **guarded)
+        rollouts["model_with_guards"] = rollout(simulator, scene, num_steps, guards=guarded)
     rollouts["constant_velocity"] = constant_velocity_baseline(scene, num_steps, gravity, dt)
     rollouts["stand_still"] = stand_still_baseline(scene, num_steps)
     return rollouts
@@ -151,7 +150,7 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     return records
 
 
-def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_flight=None, keep_out=False, guarded=None):
+def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded=None):
     """Metrics of the model (and the model with the guards `guarded`, see method_rollouts) and
     the baselines on scenes of one trajectory file.
 
@@ -164,7 +163,7 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, sleep=None, free_fli
         horizons = horizon_steps(data.dt, scene.positions.shape[0])
         if not horizons:
             continue
-        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, sleep, free_flight, keep_out, guarded)
+        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, guards, guarded)
         mesh_names = data.trajectories[scene.name].mesh_names
         for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
             all_records.setdefault(key, []).extend(records)

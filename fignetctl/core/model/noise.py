@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import torch
 
 
@@ -75,3 +76,15 @@ def apply_rigid_pose_noise(
     offsets = positions - point_centres
     rotated_offsets = torch.einsum("pij,pj->pi", rotations[object_index], offsets)
     return point_centres + rotated_offsets + noise.translations.to(positions.dtype)[object_index]
+
+
+def apply_rigid_pose_noise_to_poses(positions, quaternions, noise: RigidPoseNoise):
+    """The same motion applied to object poses: centre c_o + t_o, rotation R_o · q_o, so the
+    vertices of the noisy poses are `apply_rigid_pose_noise` of the vertices of the clean ones.
+
+    positions (O, 3), quaternions (O, 4) w x y z -> float64 numpy copies
+    """
+    from fignetctl.core.transforms import quat_from_rotation_vector, quat_multiply
+
+    turned = quat_multiply(quat_from_rotation_vector(noise.rotation_vectors.double().cpu().numpy()), quaternions)
+    return np.asarray(positions, np.float64) + noise.translations.double().cpu().numpy(), turned

@@ -103,16 +103,33 @@ class Sleepers:
         return self._geometries[key]
 
 
-def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, sleep: SleepSettings | None = None,
-            free_flight=None, keep_out=False, with_velocities=False):
-    """Predict `num_steps` frames after frames 0 and 1 of `scene`.
+@dataclasses.dataclass(frozen=True)
+class Guards:
+    """What a rollout adds around the network (none by default: the network alone)."""
 
-    sleep : SleepSettings to let resting objects sleep (module docstring); None: never
-    free_flight : gravity · dt² (3,) to move objects that touch nothing in exact free flight
-        (LearnedSimulator.step); None: the network moves every dynamic object
-    keep_out : after each step, translate dynamic objects back out of the static meshes
-        (and asleep objects) they passed into (penetration.push_out_of_static); a
-        velocity-state model's object also loses the part of its velocity along the push
+    sleep: SleepSettings | None = None
+    """Let resting objects sleep (module docstring); None: never."""
+    free_flight: tuple | None = None
+    """gravity · dt² (3,) in metres per step²: objects that touch nothing move in exact free
+    flight (LearnedSimulator.predict); None: the network moves every dynamic object."""
+    keep_out: bool = False
+    """After each step, translate dynamic objects back out of the static meshes (and asleep
+    objects) they passed into (penetration.push_out_of_static); a velocity-state model's
+    object also loses the part of its velocity along the push."""
+
+
+def guards_for(dt, gravity, sleep=False, free_flight=False, keep_out=False) -> Guards:
+    """The Guards of a scene with frame time dt (s) and gravity (3,) m/s², from three switches."""
+    magnitude = float(np.linalg.norm(gravity))
+    settings = SleepSettings(dt=float(dt), gravity=magnitude if magnitude > 0 else 9.81) if sleep else None
+    acceleration = tuple(float(g) * float(dt) ** 2 for g in gravity) if free_flight else None
+    return Guards(settings, acceleration, bool(keep_out))
+
+
+def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, guards: Guards = Guards(),
+            with_velocities=False):
+    """Predict `num_steps` frames after frames 0 and 1 of `scene`, with the `guards`.
+
     with_velocities : also return the velocities a velocity-state model carries
     returns positions (2 + K, O, 3), quaternions (2 + K, O, 4) float64, and with
         `with_velocities` velocities and angular velocities (2 + K, O, 3) in m/s and rad/s
@@ -123,7 +140,8 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
     carries = simulator.config.uses_velocities
     velocities = [scene.velocities[0], scene.velocities[1]] if carries else None
     angular = [scene.angular_velocities[0], scene.angular_velocities[1]] if carries else None
-    sleepers = None if sleep is None else Sleepers(scene.geometry, sleep, simulator.config.graph.collision_radius)
+    free_flight = None if guards.free_flight is None else np.asarray(guards.free_flight, np.float64)
+    sleepers = None if guards.sleep is None else Sleepers(scene.geometry, guards.sleep, simulator.config.graph.collision_radius)
     for step in range(num_steps):
         next_static = given_static_pose(scene, step + 2)
         if sleepers is not None:
@@ -142,7 +160,7 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
             state = (velocities[-1], angular[-1]) if carries else None
             new_position, new_quaternion, new_velocity, new_angular = simulator.predict(
                 geometry, history_positions, history_quaternions, free_flight=free_flight, velocities=state)
-            if keep_out:
+            if guards.keep_out:
                 predicted = new_position
                 new_position, _ = push_out_of_static(geometry, positions[-1], quaternions[-1], new_position, new_quaternion)
                 if carries:

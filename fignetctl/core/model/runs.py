@@ -9,7 +9,7 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
 from fignetctl.core.model.properties import outside_ranges
-from fignetctl.core.model.rollout import RolloutError, SleepSettings, rollout
+from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
@@ -24,17 +24,6 @@ def load_model(path=None, device="cpu"):
         if not path.is_file():
             raise FignetError(f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)")
     return load_checkpoint(path, device=device)
-
-
-def sleep_settings(data) -> SleepSettings:
-    """SleepSettings for a file's frame time and gravity."""
-    gravity = float(np.linalg.norm(data.gravity))
-    return SleepSettings(dt=float(data.dt), gravity=gravity if gravity > 0 else 9.81)
-
-
-def free_flight_acceleration(data):
-    """gravity · dt² (3,) of a file: the step of free flight (LearnedSimulator.step)."""
-    return np.asarray(data.gravity, np.float64) * float(data.dt) ** 2
 
 
 def simulation_time_step(simulator, data, key, where) -> float:
@@ -87,7 +76,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         simulated, history = similarity.scaled_scene(data, key, scale)
     scene = scene_from_trajectory(simulated, key, simulator.config)
     warn_untrained_properties(simulator, [data.trajectories[key]])
-    stepped = dataclasses.replace(data, dt=step_dt)
+    guards = guards_for(step_dt, data.gravity, sleep, free_flight, keep_out)
 
     def result(frames):
         if scale != 1.0:
@@ -95,9 +84,7 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
         return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
 
     try:
-        frames = rollout(simulator, scene, num_steps, on_step, sleep=sleep_settings(stepped) if sleep else None,
-                         free_flight=free_flight_acceleration(stepped) if free_flight else None, keep_out=keep_out,
-                         with_velocities=True)
+        frames = rollout(simulator, scene, num_steps, on_step, guards=guards, with_velocities=True)
     except RolloutError as error:
         error.partial_file = result((error.positions, error.quaternions, None, None))
         raise
@@ -146,9 +133,9 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
     cache = {}
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
-    guarded = dict(sleep=sleep_settings(data), free_flight=free_flight_acceleration(data), keep_out=True) if with_guards else None
-    results = evaluate_scenes(simulator, data, scenes, on_scene, sleep_settings(data) if sleep else None,
-                              free_flight_acceleration(data) if free_flight else None, keep_out, guarded)
+    guards = guards_for(data.dt, data.gravity, sleep, free_flight, keep_out)
+    guarded = guards_for(data.dt, data.gravity, True, True, True) if with_guards else None
+    results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),

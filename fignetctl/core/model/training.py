@@ -29,13 +29,12 @@ import torch
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
-from fignetctl.core.model.noise import sample_rigid_pose_noise
+from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.properties import property_ranges, ranges_to_json
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
 from fignetctl.core.trajectory import read_trajectories
-from fignetctl.core.transforms import quat_from_axis_angle, quat_multiply
 from fignetctl.errors import FignetError
 
 
@@ -107,16 +106,12 @@ def learning_rate_factor(step: int, config: TrainingConfig) -> float:
 
 
 def jitter_frame_t(positions, quaternions, static, generator, config: TrainingConfig):
-    """Per-object rigid noise on frame t (index 1) of (3, O, 3) / (3, O, 4) poses; copies."""
+    """Per-object rigid noise (noise.py) on frame t (index 1) of (3, O, 3) / (3, O, 4) poses; copies."""
     noise = sample_rigid_pose_noise(
         torch.from_numpy(~static), config.noise_translation_std, config.noise_rotation_std, generator
     )
-    rotation_vectors = noise.rotation_vectors.double().numpy()
-    angles = np.linalg.norm(rotation_vectors, axis=1)
-    axes = np.where(angles[:, None] > 0, rotation_vectors / np.maximum(angles, 1e-300)[:, None], [1.0, 0, 0])
-    positions, quaternions = positions.copy(), quaternions.copy()
-    positions[1] += noise.translations.double().numpy()
-    quaternions[1] = quat_multiply(quat_from_axis_angle(axes, angles), quaternions[1])
+    positions, quaternions = np.array(positions, np.float64), np.array(quaternions, np.float64)
+    positions[1], quaternions[1] = apply_rigid_pose_noise_to_poses(positions[1], quaternions[1], noise)
     return positions, quaternions
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from fignetctl.core.model.network import PRESETS
-from fignetctl.core.model.rollout import rollout
+from fignetctl.core.model.rollout import Guards, rollout
 from fignetctl.core.model.scene_graph import build_scene_graph
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, free_flight_poses
 from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply
@@ -87,7 +87,7 @@ def test_the_network_is_not_run_while_nothing_touches(monkeypatch):
         raise AssertionError("the network ran")
 
     monkeypatch.setattr(simulator, "forward", refuse)
-    positions, _ = rollout(simulator, scene, 20, free_flight=GRAVITY * DT**2)
+    positions, _ = rollout(simulator, scene, 20, guards=Guards(free_flight=tuple(GRAVITY * DT**2)))
     position, _ = exact_pose(20 * DT, scene.positions[1, 1], np.array([1.0, 0, 0]), 0.0, scene.quaternions[1, 1])
     np.testing.assert_allclose(positions[-1, 1], position, atol=1e-9)
     with pytest.raises(AssertionError, match="the network ran"):

@@ -1,5 +1,6 @@
 import math
 
+import numpy as np
 import torch
 
 from fignetctl.core.model.noise import (
@@ -60,3 +61,21 @@ def test_noise_has_the_requested_spread_and_is_reproducible():
     assert abs(noise.rotation_vectors.std().item() / 0.02 - 1) < 0.03
     again = sample_rigid_pose_noise(dynamic, 0.003, 0.02, torch.Generator().manual_seed(2))
     torch.testing.assert_close(again.translations, noise.translations)
+
+
+def test_noise_on_poses_moves_the_vertices_as_the_noise_on_points_does():
+    from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses
+    from fignetctl.core.transforms import quat_from_rotation_vector, quat_to_matrix
+
+    rng = np.random.default_rng(3)
+    centres = rng.normal(size=(3, 3))
+    quaternions = quat_from_rotation_vector(rng.normal(size=(3, 3)))
+    rest = rng.normal(size=(3, 5, 3))
+    world = np.einsum("oij,okj->oki", quat_to_matrix(quaternions), rest) + centres[:, None]
+    noise = sample_rigid_pose_noise(torch.tensor([True, True, False]), 0.01, 0.3, torch.Generator().manual_seed(4))
+    noisy_centres, noisy_quaternions = apply_rigid_pose_noise_to_poses(centres, quaternions, noise)
+    from_poses = np.einsum("oij,okj->oki", quat_to_matrix(noisy_quaternions), rest) + noisy_centres[:, None]
+    owner = torch.arange(3).repeat_interleave(5)
+    from_points = apply_rigid_pose_noise(torch.from_numpy(world.reshape(-1, 3)), owner, torch.from_numpy(centres), noise)
+    np.testing.assert_allclose(from_poses.reshape(-1, 3), from_points.numpy(), atol=1e-6)  # noise.py builds its matrices in float32
+    np.testing.assert_array_equal(noisy_centres[2], centres[2])

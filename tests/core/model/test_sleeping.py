@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 
-from fignetctl.core.model.rollout import SleepSettings, rollout
+from fignetctl.core.model.rollout import Guards, SleepSettings, rollout
 from fignetctl.core.model.scene_data import Scene
 from fignetctl.core.model.scene_graph import scene_geometry
 from fignetctl.core.model.simulator import SimulatorConfig
@@ -60,7 +60,7 @@ def test_a_resting_object_falls_asleep_and_stays_put():
     positions, _ = rollout(awake, scene, 500)
     assert abs(positions[-1, 1, 0] - positions[1, 1, 0]) > 1.0  # without sleeping it creeps away (2.5 m)
     asleep = DriftingSimulator()
-    positions, _ = rollout(asleep, scene, 500, sleep=SleepSettings())
+    positions, _ = rollout(asleep, scene, 500, guards=Guards(sleep=SleepSettings()))
     assert abs(positions[-1, 1, 0] - positions[1, 1, 0]) < 2e-3
     assert len(asleep.static_seen) <= SleepSettings().frames + 1  # then no step was simulated at all
     np.testing.assert_array_equal(positions[-1], positions[-100])
@@ -69,7 +69,7 @@ def test_a_resting_object_falls_asleep_and_stays_put():
 def test_a_moving_object_does_not_sleep():
     scene = cube_scene([[0, 0, 0.5]], [[0.3, 0, 0]])  # 0.3 m/s > 0.02 * sqrt(9.81 * 1.73) = 0.08 m/s
     simulator = DriftingSimulator(drift=0.0)
-    positions, _ = rollout(simulator, scene, 60, sleep=SleepSettings())
+    positions, _ = rollout(simulator, scene, 60, guards=Guards(sleep=SleepSettings()))
     assert len(simulator.static_seen) == 60
     np.testing.assert_allclose(positions[-1, 1, 0], 0.3 * 60 / 30, rtol=1e-9)
 
@@ -78,7 +78,7 @@ def test_an_asleep_object_is_static_until_something_comes_near_and_then_moves():
     # cube 1 rests at x = 0; cube 2 slides towards it from x = 8 at 3 m/s
     scene = cube_scene([[0, 0, 0.5], [8, 0, 0.5]], [[0, 0, 0], [-3, 0, 0]])
     simulator = DriftingSimulator(drift=0.0)
-    positions, _ = rollout(simulator, scene, 80, sleep=SleepSettings(frames=5))
+    positions, _ = rollout(simulator, scene, 80, guards=Guards(sleep=SleepSettings(frames=5)))
     seen = np.array(simulator.static_seen)
     assert seen[10:30, 1].all() and not seen[10:30, 2].any()  # cube 1 asleep (static), cube 2 simulated
     woke = int(np.argmin(seen[10:, 1])) + 10
@@ -108,7 +108,7 @@ def test_neighbours_that_come_to_rest_a_frame_apart_fall_asleep_together():
     restart its count) as it fell asleep, so neither ever slept."""
     scene = cube_scene([[0, 0, 0.5], [1.1, 0, 0.5]], [[0, 0, 0], [1.0, 0, 0]])
     simulator = StillSimulator()
-    positions, _ = rollout(simulator, scene, 100, sleep=SleepSettings())
+    positions, _ = rollout(simulator, scene, 100, guards=Guards(sleep=SleepSettings()))
     assert len(simulator.static_seen) <= SleepSettings().frames + 2
     np.testing.assert_array_equal(positions[-1], positions[1])
 

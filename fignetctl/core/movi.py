@@ -144,6 +144,29 @@ class MoviConfig:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
+def config_from_json(text: str) -> MoviConfig:
+    """The MoviConfig that `MoviConfig.to_json` wrote (a make-dataset file's `config` attribute).
+
+    Raises FignetError for text that is not such json or names settings this version lacks.
+    """
+    try:
+        settings = json.loads(text)
+        if not isinstance(settings, dict):
+            raise ValueError("it is not a json object")
+        materials = settings.pop("materials", None)
+        settings = {key: _tuples(value) for key, value in settings.items()}
+        if materials is not None:
+            settings["materials"] = tuple(Material(**fields) for fields in materials)
+        return MoviConfig(**settings)
+    except (AttributeError, TypeError, ValueError) as error:
+        raise FignetError(f"the generator config is not one this version reads: {error}") from None
+
+
+def _tuples(value):
+    """json lists back to (nested) tuples, as MoviConfig holds them."""
+    return tuple(_tuples(item) for item in value) if isinstance(value, list) else value
+
+
 PRESETS = {
     "movi-b": MoviConfig(),
     "movi-c": MoviConfig(
@@ -459,6 +482,40 @@ class MoviSimulator:
     def __exit__(self, *exc):
         self.close()
 
+    def build_scene(self, specs) -> list:
+        """A fresh world with the floor and one body per ObjectSpec, parked out of the way
+        (place them with set_object_states). Returns the body ids, the floor first."""
+        self._reset_world()
+        return [self._add_floor()] + [self._add_object(spec) for spec in specs]
+
+    def set_object_states(self, bodies, specs, positions, quaternions, velocities, angular_velocities) -> None:
+        """Put each spec's body (bodies[1:], the floor stays) in an object-frame state.
+
+        positions : (N, 3) centre of mass, quaternions : (N, 4) w x y z object-to-world,
+        velocities, angular_velocities : (N, 3) world frame; N = len(specs)
+        """
+        p, client = self.pybullet, self.client
+        principal = np.stack([self.asset(spec.asset).principal_quaternion for spec in specs])
+        inertial = quat_wxyz_to_xyzw(inertial_quaternions(quat_normalize(quaternions), principal))
+        for body, position, orientation, velocity, angular in zip(
+            bodies[1:], positions, inertial, velocities, angular_velocities
+        ):
+            p.resetBasePositionAndOrientation(body, list(position), list(orientation), physicsClientId=client)
+            p.resetBaseVelocity(body, list(velocity), list(angular), physicsClientId=client)
+
+    def object_states(self, bodies, specs) -> tuple:
+        """The state of each spec's body (bodies[1:]) in the object frame, float64:
+        positions (N, 3), quaternions (N, 4) w x y z, velocities (N, 3), angular velocities (N, 3)."""
+        states = np.array([self._state(body) for body in bodies[1:]], np.float64).reshape(-1, 13)
+        principal = np.stack([self.asset(spec.asset).principal_quaternion for spec in specs])
+        quaternions = object_quaternions(quat_xyzw_to_wxyz(states[:, 3:7]), principal)
+        return states[:, :3], quaternions, states[:, 7:10], states[:, 10:13]
+
+    def step_frame(self) -> None:
+        """Advance the world by one recorded frame: steps_per_frame physics steps."""
+        for _ in range(self.config.steps_per_frame):
+            self.pybullet.stepSimulation(physicsClientId=self.client)
+
     def simulate(self, seed: int, index: int) -> TrajectoryResult:
         """Simulate trajectory `index` of a run with `seed`, retrying dropped scenes."""
         start, drops = time.perf_counter(), collections.Counter()
@@ -567,15 +624,13 @@ class MoviSimulator:
         min_pair_distance = np.full(frames, np.inf)
         for frame in range(frames):
             if frame:
-                for _ in range(self.config.steps_per_frame):
-                    self.pybullet.stepSimulation(physicsClientId=self.client)
+                self.step_frame()
             states[frame] = [self._state(body) for body in bodies]
             min_pair_distance[frame] = self._min_pair_distance(floor=bodies[0])
         principal = [np.array([1.0, 0, 0, 0])] + [self.asset(s.asset).principal_quaternion for s in specs]
-        inertial_quaternions = quat_xyzw_to_wxyz(states[..., 3:7])
-        quaternions = quat_multiply(inertial_quaternions, quat_conjugate(np.stack(principal)))
+        quaternions = object_quaternions(quat_xyzw_to_wxyz(states[..., 3:7]), np.stack(principal))
         return SimulationRecord(
-            positions=states[..., :3], quaternions=quat_normalize(quaternions),
+            positions=states[..., :3], quaternions=quaternions,
             velocities=states[..., 7:10], angular_velocities=states[..., 10:13],
             min_pair_distance=min_pair_distance,
         )
@@ -622,6 +677,24 @@ class MoviSimulator:
             angular_velocities=record.angular_velocities.astype(np.float32),
             extras=_physical_extras(record, np.stack(inertia)),
         )
+
+
+def inertial_quaternions(rotations, principal) -> np.ndarray:
+    """PyBullet's base orientation of objects turned by `rotations`: rotation ⊗ principal.
+
+    rotations : (..., 4) w x y z object-to-world; principal : (..., 4) w x y z, broadcast
+    returns : (..., 4) float64 w x y z
+    """
+    return quat_multiply(rotations, principal)
+
+
+def object_quaternions(base_orientations, principal) -> np.ndarray:
+    """The object rotations of PyBullet's base orientations: base ⊗ principal⁻¹, unit.
+
+    base_orientations : (..., 4) w x y z; principal : (..., 4) w x y z, broadcast
+    returns : (..., 4) float64 w x y z
+    """
+    return quat_normalize(quat_multiply(base_orientations, quat_conjugate(principal)))
 
 
 def object_mass_properties(asset: PreparedAsset, spec: ObjectSpec) -> tuple:

@@ -12,7 +12,14 @@ import pytest
 
 from fignetctl.core import movi
 from fignetctl.core.shapes import ShapeAsset
-from fignetctl.core.transforms import quat_from_axis_angle, quat_to_matrix, transform_points
+from fignetctl.core.transforms import (
+    quat_angle_deg,
+    quat_from_axis_angle,
+    quat_to_matrix,
+    quat_xyzw_to_wxyz,
+    random_quaternions,
+    transform_points,
+)
 from fignetctl.errors import FignetError
 
 GRAVITY = 10.0
@@ -80,6 +87,14 @@ def test_config_overrides_and_frame_counts():
     assert config.num_objects == (3, 10)
     assert (config.steps_per_frame, config.num_frames) == (4, 121)
     assert config.dt == pytest.approx(1 / 60)
+
+
+def test_config_json_reads_back_as_the_same_config():
+    for config in (movi.movi_config("movi-b", fps=60), movi.movi_config("movi-c", duration=2.0)):
+        assert movi.config_from_json(config.to_json()) == config
+    for bad in ("{", "[1]", '{"fps": 30, "colour": "red"}'):
+        with pytest.raises(FignetError, match="generator config"):
+            movi.config_from_json(bad)
 
 
 @pytest.mark.parametrize("overrides", [dict(fps=25), dict(fps=0), dict(duration=0.0)])
@@ -432,6 +447,26 @@ def test_a_tumbling_l_keeps_its_angular_momentum_and_energy(tmp_path, shapes):
     np.testing.assert_allclose(momentum, momentum[:1].repeat(len(momentum), 0), atol=0.02 * np.linalg.norm(momentum[0]))
     np.testing.assert_allclose(energy, energy[0], rtol=0.02)
     assert np.ptp(record.angular_velocities[:, 1], axis=0).max() > 0.5  # it does tumble
+
+
+def test_object_states_read_back_as_set(tmp_path, shapes):
+    """set_object_states and object_states convert between object and inertial frames."""
+    specs = [movi.ObjectSpec(asset=2, scale=1.3, material=movi.METAL), movi.ObjectSpec(1, 0.8, movi.RUBBER)]
+    rng = np.random.default_rng(1)
+    positions, velocities, angular = rng.normal(size=(3, 2, 3))
+    quaternions = random_quaternions(rng, 2)
+    with movi.MoviSimulator(movi.plain_shapes(shapes), small_config(), tmp_path) as simulator:
+        bodies = simulator.build_scene(specs)
+        simulator.set_object_states(bodies, specs, positions + [0, 0, 5], quaternions, velocities, angular)
+        back = simulator.object_states(bodies, specs)
+        inertial = simulator.pybullet.getBasePositionAndOrientation(bodies[1])[1]
+    np.testing.assert_allclose(back[0], positions + [0, 0, 5], atol=1e-12)
+    assert quat_angle_deg(back[1], quaternions).max() < 1e-6
+    np.testing.assert_allclose(back[2], velocities, atol=1e-12)
+    np.testing.assert_allclose(back[3], angular, atol=1e-12)
+    ell = movi.inertial_quaternions(quaternions[0], simulator.asset(2).principal_quaternion)
+    assert quat_angle_deg(quat_xyzw_to_wxyz(np.array(inertial)), ell) < 1e-6
+    assert quat_angle_deg(ell, quaternions[0]) > 1.0  # the L's principal frame is turned
 
 
 def top_surface_heights(vertices, faces, points):

@@ -1,0 +1,216 @@
+"""Physics ceilings: PyBullet restarted every frame from the finite-difference or velocity state.
+
+Scenes are made here as make-dataset makes them (movi.generate, then the file written and read
+back, so frames are float32 as in real files), from trimesh stand-in shapes: a cube, an
+icosphere and an L of two boxes (whose principal frame is not the object frame).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fignetctl.core import ceilings, movi
+from fignetctl.core.shapes import ShapeAsset
+from fignetctl.core.trajectory import read_trajectories, write_trajectories
+from fignetctl.core.transforms import quat_angle_deg, quat_from_rotation_vector, quat_multiply, random_quaternions
+from fignetctl.errors import FignetError
+
+GRAVITY = 10.0
+# Frame 2 from frame 1 stored as float32: positions (|x| < 8 m) carry up to half a float32 ulp
+# (4.8e-7 m) in the start and again in the stored truth; measured up to 2.1e-7 m.
+FLOAT32_POSITION_TOLERANCE = 5e-7
+
+
+def shape(name, mesh, parts=None):
+    """A ShapeAsset of a trimesh mesh moved to its centre of mass; parts default to the mesh."""
+    centre = np.asarray(mesh.center_mass)
+    parts = [mesh.vertices] if parts is None else parts
+    return ShapeAsset(
+        name=name,
+        vertices=np.asarray(mesh.vertices - centre, np.float32),
+        faces=np.asarray(mesh.faces, np.int32),
+        convex_parts=tuple(np.asarray(part - centre, np.float32) for part in parts),
+        source="test",
+    )
+
+
+@pytest.fixture(scope="module")
+def shapes():
+    import trimesh
+
+    long = trimesh.creation.box((2.0, 1.0, 1.0))
+    foot = trimesh.creation.box((1.0, 1.0, 1.0), trimesh.transformations.translation_matrix([0.5, 1.0, 0.0]))
+    return [
+        shape("cube", trimesh.creation.box((2.0, 2.0, 2.0))),
+        shape("ball", trimesh.creation.icosphere(subdivisions=2, radius=1.0)),
+        shape("ell", trimesh.util.concatenate([long, foot]), parts=[long.vertices, foot.vertices]),
+    ]
+
+
+def dataset(folder, shapes, seed, count, **overrides):
+    """A make-dataset style file of `count` scenes, written and read back."""
+    settings = dict(duration=1.0, num_objects=(3, 4))
+    settings.update(overrides)
+    config = movi.movi_config("movi-b", **settings)
+    results = list(movi.generate(shapes, config, seed, range(count)))
+    attrs = {"source": "fignetctl make-dataset", "config": config.to_json()}
+    data = movi.dataset_file(results, shapes, config, count, attrs)
+    return read_trajectories(write_trajectories(folder / f"d{seed}.h5", data))
+
+
+@pytest.fixture(scope="module")
+def tosses(tmp_path_factory, shapes):
+    """Two 1 s scenes of 3-4 tossed cubes, balls and Ls (30 fps, 31 frames)."""
+    return dataset(tmp_path_factory.mktemp("ceilings"), shapes, 5, 2)
+
+
+@pytest.fixture(scope="module")
+def spinning_fall(tmp_path_factory, shapes):
+    """One ball falling freely from 20 m for 1 s, given a spin ω about a slanted axis at frame 1.
+
+    The ball's inertia is isotropic, so it spins at constant ω: frame 1 + k is turned by
+    exp(ω k dt) from frame 1. Returns the file and the expected quaternions of frames 1.. (30, 4).
+    """
+    config = dict(num_objects=(1, 1), spawn_region=((-1.0, -1.0, 20.0), (1.0, 1.0, 22.0)))
+    data = dataset(tmp_path_factory.mktemp("fall"), [shapes[1]], 4, 1, **config)
+    trajectory = data.trajectories["00000"]
+    omega = np.array([1.0, -2.0, 3.0])
+    q0 = random_quaternions(np.random.default_rng(0), 1)[0]
+    q1 = quat_multiply(quat_from_rotation_vector(omega * data.dt), q0)
+    trajectory.quaternions[0, 1], trajectory.quaternions[1, 1], trajectory.angular_velocities[1, 1] = q0, q1, omega
+    steps = np.arange(trajectory.num_frames - 1)[:, None]
+    return data, quat_multiply(quat_from_rotation_vector(omega * data.dt * steps), trajectory.quaternions[1, 1])
+
+
+# ----------------------------------------------------------------------------- the restarts
+
+
+def test_one_velocity_restart_reproduces_the_recorded_next_frame(tosses, shapes):
+    """The same physics from the same state (no object touches another in frames 1-2 here)."""
+    for key, truth in tosses.trajectories.items():
+        positions, quaternions = ceilings.ceiling_rollout(tosses, key, "velocity", 1, assets=shapes)
+        assert positions.shape == (3, truth.num_objects, 3) and quaternions.shape == (3, truth.num_objects, 4)
+        assert positions.dtype == quaternions.dtype == np.float64
+        np.testing.assert_array_equal(positions[:2], truth.positions[:2])
+        np.testing.assert_array_equal(quaternions[:2], truth.quaternions[:2])
+        np.testing.assert_allclose(positions[2], truth.positions[2], rtol=0, atol=FLOAT32_POSITION_TOLERANCE)
+        assert quat_angle_deg(truth.quaternions[2], quaternions[2]).max() < 1e-4  # measured 4e-6 degrees
+        assert not np.array_equal(truth.positions[2, 1:], truth.positions[1, 1:])  # they did move
+
+
+def test_restarts_keep_the_floor_where_it_is(tosses, shapes):
+    key = "00000"
+    for state in ceilings.STATES:
+        positions, quaternions = ceilings.ceiling_rollout(tosses, key, state, 5, assets=shapes)
+        assert positions.shape[0] == 7
+        np.testing.assert_array_equal(positions[:, 0], np.repeat(tosses.trajectories[key].positions[1:2, 0], 7, 0))
+        np.testing.assert_array_equal(quaternions[:, 0], np.repeat(tosses.trajectories[key].quaternions[1:2, 0], 7, 0))
+
+
+def test_in_free_fall_the_velocity_state_is_exact_and_finite_differences_lag_behind(spinning_fall, shapes):
+    """Finite differences over a frame of s physics steps (h = dt / s, symplectic Euler) give the
+    frame's mean velocity, s(s+1)/2 g h² / (s h) short of the last: each restarted frame then
+    falls s(s-1)/2 g h² less than PyBullet's, and after k steps the body is higher by
+    s(s-1)/2 g h² k(k+1)/2 (2.11 m after 1 s at 30 fps). A constant spin is differenced exactly."""
+    data, spun = spinning_fall
+    truth = data.trajectories["00000"]
+    steps = np.arange(truth.num_frames - 1)
+    s, h = 8, data.dt / 8
+    lag = s * (s - 1) / 2 * GRAVITY * h * h * steps * (steps + 1) / 2
+    for state, expected_lag in (("velocity", 0.0 * lag), ("finite-difference", lag)):
+        steps = truth.num_frames - 2
+        positions, quaternions = ceilings.ceiling_rollout(data, "00000", state, steps, assets=[shapes[1]])
+        error = positions[1:, 1] - truth.positions[1:, 1]
+        np.testing.assert_allclose(error[:, :2], 0.0, atol=1e-6)  # measured 2.5e-7 m
+        np.testing.assert_allclose(error[:, 2], expected_lag, rtol=0, atol=1e-4)  # measured 1.2e-5 m
+        assert quat_angle_deg(spun, quaternions[1:, 1]).max() < 2e-4  # measured 2.8e-5 degrees
+
+
+def test_finite_differences_do_worse_than_velocities_at_every_horizon(tosses, shapes):
+    result = ceilings.evaluate_ceilings(tosses, assets=shapes)
+    assert result["horizons"] == [3, 6, 10, 15]  # 0.1, 0.2, 0.33, 0.5 s; 1 s, 1.67 s and 50 steps do not fit
+    objects = sum(t.num_objects - 1 for t in tosses.trajectories.values())
+    assert result["trajectories"] == 2 and result["objects"] == objects and not result["keep_world"]
+    finite, velocity = result["states"]["finite-difference"], result["states"]["velocity"]
+    for fd_row, velocity_row in zip(finite, velocity):
+        assert fd_row["steps"] == velocity_row["steps"] and fd_row["objects"] == objects
+        assert fd_row["translation_rmse_m"] > 10 * velocity_row["translation_rmse_m"]
+        assert velocity_row["rotation_rms_deg"] >= velocity_row["rotation_mean_deg"]
+    assert finite[-1]["seconds"] == pytest.approx(0.5)
+
+
+def test_the_summary_follows_the_metrics_definitions():
+    summary = ceilings.error_summary([3.0, 4.0], [10.0, 20.0])
+    assert summary["translation_rmse_m"] == pytest.approx(np.sqrt(12.5))
+    assert summary["rotation_mean_deg"] == pytest.approx(15.0)
+    assert summary["rotation_rms_deg"] == pytest.approx(np.sqrt(250.0))
+    assert summary["objects"] == 2
+    assert ceilings.horizon_steps(1 / 30, 121) == [3, 6, 10, 15, 30, 50]
+    assert ceilings.horizon_steps(1 / 60, 121) == [6, 12, 20, 30, 50, 60, 100]
+
+
+def continued_pybullet(data, key, shapes, num_steps):
+    """(K, N, 3) positions of the dynamic objects when PyBullet simply runs on from frame 1."""
+    truth = data.trajectories[key]
+    with ceilings.RestartedPyBullet(data, shapes) as physics:
+        simulator = physics.simulator
+        specs = ceilings.object_specs(truth, physics.config, physics.asset_index, simulator)
+        bodies = simulator.build_scene(specs)
+        start = (truth.positions, truth.quaternions, truth.velocities, truth.angular_velocities)
+        simulator.set_object_states(bodies, specs, *(np.asarray(field[1, 1:], np.float64) for field in start))
+        positions = []
+        for _ in range(num_steps):
+            simulator.step_frame()
+            positions.append(simulator.object_states(bodies, specs)[0])
+    return np.stack(positions)
+
+
+def test_only_a_fresh_world_forgets_the_contacts_of_earlier_frames(tosses, shapes):
+    """Kept world: the velocity resets are no-ops, the rollout is PyBullet run on from frame 1
+    (measured 5e-11 m). Fresh worlds: once objects land, PyBullet's contact manifolds (points
+    gathered over several steps) are rebuilt every frame and the rollout departs from it (here
+    by 2 cm and 29 cm within 1 s)."""
+    for key, truth in tosses.trajectories.items():
+        steps = truth.num_frames - 2
+        continued = continued_pybullet(tosses, key, shapes, steps)
+        kept, _ = ceilings.ceiling_rollout(tosses, key, "velocity", steps, assets=shapes, keep_world=True)
+        fresh, _ = ceilings.ceiling_rollout(tosses, key, "velocity", steps, assets=shapes)
+        np.testing.assert_allclose(kept[2:, 1:], continued, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(fresh[2:6, 1:], continued[:4], rtol=0, atol=1e-12)  # in the air
+        assert np.abs(fresh[-1, 1:] - continued[-1]).max() > 0.01
+
+
+# ----------------------------------------------------------------------------- clear errors
+
+
+def test_a_file_without_a_generator_config_is_refused(tosses, shapes):
+    other = dataclasses.replace(tosses, attrs={"source": "elsewhere"})
+    with pytest.raises(FignetError, match="make-dataset"):
+        ceilings.ceiling_rollout(other, "00000", "velocity", 1, assets=shapes)
+
+
+def test_unknown_states_and_trajectories_are_refused(tosses, shapes):
+    with pytest.raises(FignetError, match="unknown state 'position'"):
+        ceilings.ceiling_rollout(tosses, "00000", "position", 1, assets=shapes)
+    with pytest.raises(FignetError, match="no trajectory '00007'"):
+        ceilings.ceiling_rollout(tosses, "00007", "velocity", 1, assets=shapes)
+
+
+def test_the_velocity_state_needs_recorded_velocities(tosses, shapes):
+    trajectory = dataclasses.replace(tosses.trajectories["00000"], velocities=None, angular_velocities=None)
+    old = dataclasses.replace(tosses, trajectories={"00000": trajectory})
+    with pytest.raises(FignetError, match="recorded velocities"):
+        ceilings.ceiling_rollout(old, "00000", "velocity", 1, assets=shapes)
+    positions, _ = ceilings.ceiling_rollout(old, "00000", "finite-difference", 1, assets=shapes)
+    assert positions.shape[0] == 3
+
+
+def test_shapes_that_did_not_make_the_file_are_refused(tosses, shapes):
+    import trimesh
+
+    bigger_ball = shape("ball", trimesh.creation.icosphere(subdivisions=2, radius=1.5))
+    with pytest.raises(FignetError, match="'ball' is not the one"):
+        ceilings.RestartedPyBullet(tosses, [shapes[0], bigger_ball, shapes[2]])
+    with pytest.raises(FignetError, match="no asset given"):
+        ceilings.ceiling_rollout(tosses, "00000", "velocity", 1, assets=shapes[:1])

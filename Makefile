@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 OUT    ?= out
 JOBS   ?= 2
 
-.PHONY: setup demo dataset-demo test bench checkpoints evaluate-checkpoints clean
+.PHONY: setup demo dataset-demo test bench checkpoints velocity-checkpoints evaluate-checkpoints clean
 
 # torch is pinned and installed first: an open range would pull a CUDA build of several GB.
 $(BIN)/fignetctl: pyproject.toml
@@ -70,6 +70,22 @@ $(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt
 	$(BIN)/fignetctl train $(DATA)/movi-b-train.h5 -o $@ --model $* $(POLISH_FLAGS) --log-csv $(DATA)/$*-loss.csv $(if $(wildcard $@),--resume,--init-from $<)
 
 .PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt
+
+# The velocity-state models (not bundled yet; docs/simulator.md has their figures): 4000
+# trajectories (6.7x the bundled models' data), frame t and instantaneous velocities in, static
+# nodes that do not aggregate, MSE, graphs built by a worker process, bf16 where the CPU has it.
+# One torch thread: the worker takes the other core. Resumable (re-run the target).
+VELOCITY_FLAGS := --size small --max-faces 256 --collision-radius 0.2 --state velocities --no-static-receivers --loss mse \
+                  --batch-size 8 --steps 12000 --checkpoint-every 250 --seed 0 --workers 1 --precision auto
+
+$(DATA)/movi-b-train-4k.h5: | setup
+	mkdir -p $(DATA)
+	$(BIN)/fignetctl make-dataset --preset movi-b -n 4000 --seed 1 --jobs $(JOBS) -o $@
+
+$(DATA)/%-movi-b-velocities.pt: $(DATA)/movi-b-train-4k.h5
+	OMP_NUM_THREADS=1 $(BIN)/fignetctl train $< -o $@ --model $* $(VELOCITY_FLAGS) --log-csv $(DATA)/$*-velocities-loss.csv $(if $(wildcard $@),--resume)
+
+velocity-checkpoints: $(DATA)/fignet-star-movi-b-velocities.pt $(DATA)/fignet-movi-b-velocities.pt
 
 checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt

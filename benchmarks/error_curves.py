@@ -7,7 +7,8 @@ each model with the baselines (RMSE ratio with its 95 % bootstrap interval over 
     python benchmarks/error_curves.py docs/results/fignet-star-movi-b-test.json=FIGNet* \
         docs/results/fignet-movi-b-test.json=FIGNet --plot docs/images/error-curves-movi-b.png
 
-The baselines are drawn once, from the first file (every file must hold the same data).
+The baselines and the PyBullet ceilings (`evaluate --ceilings`) are drawn once, from the first
+file (every file must hold the same data).
 """
 
 import argparse
@@ -15,6 +16,11 @@ import json
 import os
 
 BASELINES = {"constant_velocity": "constant velocity", "stand_still": "stand still"}
+CEILINGS = {  # evaluate --ceilings
+    "ceiling_velocity": "PyBullet restarted from pose + velocity",
+    "ceiling_finite_difference": "PyBullet restarted from two frames",
+}
+NAMES = {**BASELINES, **CEILINGS}
 
 
 def read(spec):
@@ -31,7 +37,7 @@ def comparison_lines(label, report):
         for horizon, c in horizons.items():
             low, high = c["translation_rmse_ratio_95"]
             rlow, rhigh = c["rotation_error_difference_deg_95"]
-            yield (f"{label} vs {BASELINES.get(baseline, baseline)}, {horizon}: translation RMSE ×{c['translation_rmse_ratio']:.3f} "
+            yield (f"{label} vs {NAMES.get(baseline, baseline)}, {horizon}: translation RMSE ×{c['translation_rmse_ratio']:.3f} "
                    f"[{low:.3f}, {high:.3f}], rotation {c['rotation_error_difference_deg']:+.1f}° [{rlow:+.1f}, {rhigh:+.1f}], "
                    f"closer for {100 * c['objects_closer']:.0f} % of {c['objects']} objects ({c['trajectories']} trajectories)")
 
@@ -46,7 +52,10 @@ def plot(reports, path):
     first = reports[0][1]
     dt = first["dt"]
     lines = [(label, report["curves"]["model"], "-") for label, report in reports]
+    lines += [(f"{label}, with guards", report["curves"]["model_with_guards"], "--")
+              for label, report in reports if "model_with_guards" in report["curves"]]
     lines += [(name, first["curves"][key], ":") for key, name in BASELINES.items() if key in first["curves"]]
+    lines += [(name, first["curves"][key], "-.") for key, name in CEILINGS.items() if key in first["curves"]]
     for axis, key, ylabel in ((axes[0], "translation_rmse_m", "translation RMSE (m)"), (axes[1], "rotation_error_deg", "rotation error (deg)")):
         for label, curve, style in lines:
             axis.plot([k * dt for k in curve["step"]], curve[key], style, label=label)

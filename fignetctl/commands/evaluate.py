@@ -14,9 +14,10 @@ from fignetctl.commands import options
 @options.free_flight_option(default=False)
 @options.keep_out_option(default=False)
 @click.option("--with-guards", is_flag=True, help="Also evaluate the model as `rollout` runs it (free flight, keep-out, sleeping), as the method model_with_guards.")
+@click.option("--ceilings", is_flag=True, help="Also evaluate PyBullet restarted every frame from what a model is given (ceiling_velocity, ceiling_finite_difference): what physics allows. DATA must come from make-dataset.")
 @options.device_option
 @options.overwrite_option
-def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, keep_out, with_guards, device, overwrite):
+def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, keep_out, with_guards, ceilings, device, overwrite):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (mean and RMS, deg) of the dynamic objects after 50
@@ -27,12 +28,15 @@ def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, kee
     same objects ("comparison": RMSE ratio and rotation difference with 95 % bootstrap
     intervals over trajectories, and the share of objects the model places closer). By default
     the network moves every object (the paper's figure); --free-flight, --keep-out and --sleep
-    evaluate what `rollout` does by default.
+    evaluate what `rollout` does by default. --ceilings adds PyBullet restarted every frame
+    from the model's inputs: the pose and instantaneous velocity (ceiling_velocity) or two
+    frames (ceiling_finite_difference), the best any model given that state could do.
 
     \b
     Example:
       fignetctl make-dataset --preset movi-b --split test -n 20 --seed 99 -o test.h5
       fignetctl evaluate test.h5 -o metrics.json
+      fignetctl evaluate test.h5 --with-guards --ceilings -o metrics.json
     """
     import json
 
@@ -42,7 +46,8 @@ def evaluate(data, model_path, max_trajectories, output, sleep, free_flight, kee
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(unit="trajectory", desc="evaluate") as bar:
         metrics = evaluate_file(simulator, data, max_trajectories, on_scene=lambda _: bar.update(1), sleep=sleep,
-                                free_flight=free_flight, keep_out=keep_out, with_guards=with_guards)
+                                free_flight=free_flight, keep_out=keep_out, with_guards=with_guards,
+                                ceilings=ceilings)
     metrics["model"] = str(model_path or "fignet-star-movi-b")
     text = json.dumps(metrics, indent=2)
     if path is None:

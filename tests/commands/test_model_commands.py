@@ -91,6 +91,14 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     assert versus_stand_still["objects"] == 1 and versus_stand_still["trajectories"] == 1
 
 
+def test_evaluate_ceilings_need_a_make_dataset_file(trained, tmp_path):
+    _, data, model = trained  # written by the tests, not by make-dataset: no generator config
+    out = tmp_path / "metrics.json"
+    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--ceilings", "-o", str(out)])
+    assert result.exit_code != 0 and not out.exists()
+    assert "not made by `fignetctl make-dataset`" in result.output and "Traceback" not in result.output
+
+
 def test_free_flight_makes_a_falling_box_exact_in_rollout_and_evaluate(trained, tmp_path):
     _, data, model = trained  # the box falls freely for the first 50 steps
     truth = read_trajectories(data).trajectories["00000"].positions

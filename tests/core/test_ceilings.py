@@ -181,6 +181,43 @@ def test_only_a_fresh_world_forgets_the_contacts_of_earlier_frames(tosses, shape
         assert np.abs(fresh[-1, 1:] - continued[-1]).max() > 0.01
 
 
+# ----------------------------------------------------------------------------- in evaluate
+
+
+def test_evaluate_measures_the_ceilings_beside_the_model(tosses, shapes):
+    """The ceilings are methods of evaluate_scenes: metrics, curves and comparisons."""
+    import torch
+
+    from fignetctl.core.model.evaluation import evaluate_scenes
+    from fignetctl.core.model.scene_data import scene_from_trajectory
+    from fignetctl.core.model.scene_graph import build_scene_graph
+    from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+    from fignetctl.core.model.training import simulator_config_for
+
+    torch.manual_seed(0)
+    config = simulator_config_for("fignet-star", "tiny", 0.5, state="velocities")
+    simulator = LearnedSimulator(dataclasses.replace(config, dt=tosses.dt, gravity=tuple(tosses.gravity))).eval()
+    scenes = [scene_from_trajectory(tosses, key, SimulatorConfig()) for key in tosses.trajectories]
+    scene = scenes[0]  # normalisers from one frame; the weights stay random
+    velocities = (scene.velocities[1] * scene.dt, scene.angular_velocities[1] * scene.dt)
+    simulator(build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph,
+                                velocities).graph, accumulate=True)
+    simulator.inverse_postprocess(np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True)
+    with ceilings.RestartedPyBullet(tosses, shapes) as physics:
+        references = {f"ceiling_{state}": (lambda scene, k, state=state: physics.rollout(scene.name, state, k))
+                      for state in ("velocity", "finite-difference")}
+        report = evaluate_scenes(simulator, tosses, scenes, references=references)
+    metrics = report["metrics"]
+    assert set(metrics) == {"model", "constant_velocity", "stand_still", "ceiling_velocity", "ceiling_finite-difference"}
+    first = metrics["ceiling_velocity"]["0.1_seconds"]["all"]
+    assert first["translation_rmse_m"] < 1e-3 and first["objects"] == sum((~t.static).sum() for t in tosses.trajectories.values())
+    for horizon in metrics["model"]:
+        velocity, finite = (metrics[f"ceiling_{s}"][horizon]["all"]["translation_rmse_m"] for s in ("velocity", "finite-difference"))
+        assert velocity < finite
+    assert set(report["comparison"]) == set(metrics) - {"model"}
+    assert len(report["curves"]["ceiling_velocity"]["step"]) == len(report["curves"]["model"]["step"])
+
+
 # ----------------------------------------------------------------------------- clear errors
 
 

@@ -17,6 +17,10 @@ Baselines (what learning buys):
 - `constant_velocity`: every object keeps its last velocity and spin, gains gravity, and stops
   when its lowest vertex reaches the floor height (the lowest static vertex) — no contact,
   friction or bounce.
+
+References (what physics allows), when given: any rollouts made outside the model, such as the
+PyBullet ceilings of fignetctl/core/ceilings.py (`ceiling_velocity`,
+`ceiling_finite_difference`), measured and compared like the baselines.
 """
 
 from __future__ import annotations
@@ -117,9 +121,10 @@ def summarize_errors(records):
     }
 
 
-def method_rollouts(simulator, scene, num_steps, gravity, dt, guards=None, guarded=None):
+def method_rollouts(simulator, scene, num_steps, gravity, dt, guards=None, guarded=None, references=None):
     """name -> (positions, quaternions) for the model (with rollout.Guards `guards`, None: the
-    network alone), the model with the Guards `guarded` (None: not run) and both baselines."""
+    network alone), the model with the Guards `guarded` (None: not run), both baselines and each
+    reference: {name: function(scene, num_steps) -> (positions, quaternions)}, frames 0..1+num_steps."""
     from fignetctl.core.model.rollout import Guards, rollout
 
     rollouts = {"model": rollout(simulator, scene, num_steps, guards=guards or Guards())}
@@ -127,6 +132,8 @@ def method_rollouts(simulator, scene, num_steps, gravity, dt, guards=None, guard
         rollouts["model_with_guards"] = rollout(simulator, scene, num_steps, guards=guarded)
     rollouts["constant_velocity"] = constant_velocity_baseline(scene, num_steps, gravity, dt)
     rollouts["stand_still"] = stand_still_baseline(scene, num_steps)
+    for name, reference in (references or {}).items():
+        rollouts[name] = reference(scene, num_steps)
     return rollouts
 
 
@@ -150,9 +157,9 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     return records
 
 
-def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded=None):
-    """Metrics of the model (and the model with the guards `guarded`, see method_rollouts) and
-    the baselines on scenes of one trajectory file.
+def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded=None, references=None):
+    """Metrics of the model (and the model with the guards `guarded` and the `references`, see
+    method_rollouts) and the baselines on scenes of one trajectory file.
 
     returns {"metrics": {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}},
              "curves": {method: per-step lists}, "comparison": {baseline: {horizon: compare(...)}}},
@@ -163,7 +170,9 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded
         horizons = horizon_steps(data.dt, scene.positions.shape[0])
         if not horizons:
             continue
-        rollouts = method_rollouts(simulator, scene, max(horizons.values()), data.gravity, data.dt, guards, guarded)
+        rollouts = method_rollouts(
+            simulator, scene, max(horizons.values()), data.gravity, data.dt, guards, guarded, references
+        )
         mesh_names = data.trajectories[scene.name].mesh_names
         for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
             all_records.setdefault(key, []).extend(records)

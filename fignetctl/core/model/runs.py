@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import logging
 
 import numpy as np
@@ -120,9 +122,11 @@ def rollout_result(data, key, positions, quaternions, velocities, angular_veloci
 
 
 def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False, keep_out=False,
-                  with_guards=False) -> dict:
+                  with_guards=False, ceilings=False) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file;
-    `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping)."""
+    `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping);
+    `ceilings` also evaluates PyBullet restarted every frame from each state (core/ceilings.py;
+    the file must come from make-dataset)."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
     data = read_trajectories(data_path)
@@ -135,8 +139,26 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
     guards = guards_for(data.dt, data.gravity, sleep, free_flight, keep_out)
     guarded = guards_for(data.dt, data.gravity, True, True, True) if with_guards else None
-    results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded)
+    with contextlib.ExitStack() as stack:
+        references = physics_ceilings(data, stack) if ceilings else None
+        results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded, references)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),
-            "free_flight": bool(free_flight), "keep_out": bool(keep_out), **results}
+            "free_flight": bool(free_flight), "keep_out": bool(keep_out), "ceilings": bool(ceilings), **results}
+
+
+def physics_ceilings(data, stack: contextlib.ExitStack) -> dict:
+    """{ceiling_velocity, ceiling_finite_difference: function(scene, num_steps) -> rollout} from
+    PyBullet rebuilt for a make-dataset file, closed with `stack`; the velocity ceiling only
+    when the file records velocities."""
+    from fignetctl.core.ceilings import RestartedPyBullet
+
+    physics = stack.enter_context(RestartedPyBullet(data))
+    states = ["velocity"] if any(t.has_velocities for t in data.trajectories.values()) else []
+    return {f"ceiling_{state.replace('-', '_')}": functools.partial(_ceiling_rollout, physics, state)
+            for state in states + ["finite-difference"]}
+
+
+def _ceiling_rollout(physics, state, scene, num_steps):
+    return physics.rollout(scene.name, state, num_steps)

@@ -22,7 +22,7 @@ import time
 from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.ceilings import PAPER_STEPS, SECONDS_HORIZONS, evaluate_ceilings, horizon_steps
-from fignetctl.core.model.training import file_sha256
+from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import read_trajectories
 
 WORLDS = {"fresh": False, "kept": True}

@@ -246,7 +246,7 @@ def make_ground_truth(path, num_trajectories, duration, seed, split="test", on_t
 
 
 def file_inputs(*paths) -> dict:
-    from fignetctl.core.model.training import file_sha256
+    from fignetctl.core.provenance import file_sha256
 
     return {str(p): file_sha256(p) for p in paths if p is not None and Path(p).is_file()}
 

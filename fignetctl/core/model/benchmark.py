@@ -422,7 +422,7 @@ def benchmark_file(path, simulators: dict, config: BenchmarkConfig, on_pair=None
 
 def file_result(path, scenes, pairs, simulators, per_pair) -> dict:
     """The json of one data file."""
-    from fignetctl.core.model.training import file_sha256
+    from fignetctl.core.provenance import file_sha256
 
     models = {
         label: {"architecture": architecture_of(simulators[label]), **summarize_model(results)}

@@ -102,7 +102,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     be the run's).
     """
     from fignetctl.core.model.properties import property_ranges, ranges_to_json
-    from fignetctl.core.model.training import file_sha256
+    from fignetctl.core.provenance import file_sha256
     from fignetctl.core.trajectory import read_trajectories
 
     payload = read_checkpoint_payload(source)

@@ -18,7 +18,6 @@ the same weights as one that never stopped.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -34,6 +33,7 @@ from fignetctl.core.model.properties import property_ranges, ranges_to_json
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
+from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.errors import FignetError
 
@@ -75,14 +75,6 @@ class TrainingConfig:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
-
-
-def file_sha256(path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def resolve_precision(precision: str, device: str) -> str:

@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 OUT    ?= out
 JOBS   ?= 2
 
-.PHONY: setup demo dataset-demo test bench checkpoints velocity-checkpoints evaluate-checkpoints clean
+.PHONY: setup demo dataset-demo test bench checkpoints velocity-checkpoints evaluate-checkpoints evaluate-velocity-checkpoint clean
 
 # torch is pinned and installed first: an open range would pull a CUDA build of several GB.
 $(BIN)/fignetctl: pyproject.toml
@@ -87,12 +87,19 @@ $(DATA)/%-movi-b-velocities.pt: $(DATA)/movi-b-train-4k.h5
 
 velocity-checkpoints: $(DATA)/fignet-star-movi-b-velocities.pt $(DATA)/fignet-movi-b-velocities.pt
 
+# The velocity-state FIGNet* on the held-out set, beside its guards, the baselines and the
+# PyBullet ceilings, and the plot of both FIGNet*s' curves (docs/simulator.md).
+evaluate-velocity-checkpoint: $(DATA)/movi-b-test.h5 $(DATA)/fignet-star-movi-b-velocities.pt
+	$(BIN)/fignetctl evaluate $< --model $(DATA)/fignet-star-movi-b-velocities.pt --with-guards --ceilings -o docs/results/fignet-star-velocities-movi-b-test.json --overwrite
+	$(BIN)/python benchmarks/error_curves.py docs/results/fignet-star-velocities-movi-b-test.json="FIGNet*, velocity state" \
+	    docs/results/fignet-star-movi-b-test.json="FIGNet* bundled, two frames" --plot docs/images/error-curves-movi-b.png
+
 checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt
 	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-movi-b.pt fignetctl/assets/models/fignet-movi-b.pt
 
 evaluate-checkpoints: $(DATA)/movi-b-test.h5
-	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt -o docs/results/fignet-star-movi-b-test.json --overwrite
+	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt --ceilings -o docs/results/fignet-star-movi-b-test.json --overwrite
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt --free-flight --keep-out -o docs/results/fignet-star-movi-b-test-free-flight-keep-out.json --overwrite
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-movi-b.pt -o docs/results/fignet-movi-b-test.json --overwrite
 

@@ -1,8 +1,9 @@
 """Held-out error against rollout time, for the models and the baselines of `evaluate` files.
 
 Plots the "curves" of one or more `fignetctl evaluate` json files (translation RMSE and mean
-rotation error of the dynamic objects at every rollout step) and prints the "comparison" of
-each model with the baselines (RMSE ratio with its 95 % bootstrap interval over trajectories).
+rotation error of the dynamic objects at every rollout step), prints the "comparison" of
+each model with the baselines (RMSE ratio with its 95 % bootstrap interval over trajectories)
+and a markdown table of every method's errors at each horizon.
 
     python benchmarks/error_curves.py docs/results/fignet-star-movi-b-test.json=FIGNet* \
         docs/results/fignet-movi-b-test.json=FIGNet --plot docs/images/error-curves-movi-b.png
@@ -42,6 +43,28 @@ def comparison_lines(label, report):
                    f"closer for {100 * c['objects_closer']:.0f} % of {c['objects']} objects ({c['trajectories']} trajectories)")
 
 
+HORIZONS = ("0.1_seconds", "0.2_seconds", "0.33_seconds", "0.5_seconds", "1_seconds", "50_steps", "2_seconds")
+
+
+def markdown_table(reports):
+    """One row per model (each file) and per baseline and ceiling (first file): translation
+    RMSE (m) / mean rotation error (deg) at each horizon the first file has."""
+    first = reports[0][1]
+    horizons = [h for h in HORIZONS if h in first["metrics"]["model"]]
+    rows = [(label, report["metrics"]["model"]) for label, report in reports]
+    rows += [(f"{label}, with guards", report["metrics"]["model_with_guards"])
+             for label, report in reports if "model_with_guards" in report["metrics"]]
+    rows += [(name, first["metrics"][key]) for key, name in NAMES.items() if key in first["metrics"]]
+    steps = {h: round(float(h.split("_")[0]) / first["dt"]) if h.endswith("seconds") else int(h.split("_")[0]) for h in horizons}
+    names = [f"{h.replace('_seconds', ' s').replace('_steps', ' steps')} ({steps[h]} steps)" if h.endswith("seconds")
+             else h.replace("_", " ") for h in horizons]
+    lines = ["| m / deg | " + " | ".join(names) + " |", "|---|" + "---:|" * len(horizons)]
+    for label, metrics in rows:
+        cells = [f"{metrics[h]['all']['translation_rmse_m']:.3f} / {metrics[h]['all']['rotation_error_deg']:.1f}" for h in horizons]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def plot(reports, path):
     import matplotlib
 
@@ -76,6 +99,7 @@ def main():
     for label, report in reports:
         for line in comparison_lines(label, report):
             print(line)
+    print(markdown_table(reports))
     if args.plot:
         plot(reports, args.plot)
         print(args.plot)

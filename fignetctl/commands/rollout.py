@@ -13,9 +13,11 @@ from fignetctl.commands import options
 @click.option("--model", "model_path", default=None, help="Model file from `fignetctl train`, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
 @click.option("--steps", type=click.IntRange(min=1), default=100, show_default=True, help="Frames to predict after the scene's first two.")
 @click.option("--trajectory", "trajectory_id", default=None, help="Which trajectory of SCENE.  [default: the first]")
-@click.option("--sim-scale", default="1", show_default=True, callback=lambda ctx, param, value: _sim_scale(value),
-              help="Simulate the scene scaled by this factor, or 'auto' to bring its largest moving object to the size "
-                   "the model was trained on (2.1 m for the bundled ones); the frames come back at dt / sqrt(scale) apart.")
+@click.option("--sim-scale", default="auto", show_default=True, callback=lambda ctx, param, value: _sim_scale(value),
+              help="Simulate the scene scaled by this factor, or 'auto': a scene whose largest moving object is outside "
+                   "the sizes the model was trained on (recorded in the model file; 1.4-2.8 m for the bundled ones) is "
+                   "brought to their median size (2.1 m), others are left as they are. Scaled frames come back "
+                   "dt / sqrt(scale) apart.")
 @options.sleep_option(default=True)
 @options.free_flight_option(default=True)
 @options.keep_out_option(default=True)
@@ -31,14 +33,14 @@ def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, f
     still written and the command fails, naming the step and the object.
 
     A learned model knows the sizes it was trained on: a 10 cm cup is far smaller than the
-    bundled models' 1.4-2.8 m objects. --sim-scale auto simulates it scaled up to their size
-    and maps the result back (Froude similarity: the frames come out dt / sqrt(scale) apart).
+    bundled models' 1.4-2.8 m objects. By default (--sim-scale auto) such a scene is simulated
+    scaled up to their size and mapped back (Froude similarity: the frames come out
+    dt / sqrt(scale) apart), and the scale is printed; --sim-scale 1 simulates it as it is.
 
     \b
     Example:
       fignetctl rollout scene.h5 --steps 200 -o rollout.h5
       fignetctl show rollout.h5 --video rollout.mp4
-      fignetctl rollout cup-drop.h5 --steps 120 --sim-scale auto -o rollout.h5
     """
     from fignetctl.core.model.rollout import RolloutError
     from fignetctl.core.model.runs import load_model, rollout_file
@@ -53,6 +55,10 @@ def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, f
         except RolloutError as failure:
             result, error = failure.partial_file, failure
     _write(result, path, rerun_path)
+    scale = float(result.attrs["sim_scale"])
+    if scale != 1.0:
+        click.echo(f"simulated at {scale:.4g}x its size, as the model knows objects of that size; "
+                   f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)", err=True)
     if error is not None:
         raise click.ClickException(f"{error} (written to {path})")
     click.echo(str(path))

@@ -179,6 +179,7 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
     assert ranges["dynamic"]["friction"] == pytest.approx([truth.friction[1]] * 2)
     assert ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2) and "mass" not in ranges["static"]
     assert ranges["dynamic"]["materials"] == [pytest.approx([truth.friction[1], truth.restitution[1]])]
+    assert ranges["dynamic"]["largest_side"] == pytest.approx([truth.scales[1]] * 3)  # a unit box, scaled
     scene = box_drop_file(frames=80, height=5.0)
     slippery = dataclasses.replace(scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32))
     write_trajectories(tmp_path / "slippery.h5", dataclasses.replace(scene, trajectories={"00000": slippery}))

@@ -17,6 +17,7 @@ import math
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from fignetctl import __version__
@@ -101,7 +102,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     file of a run saved before models stored `trained_properties`, adds them (its hash must
     be the run's).
     """
-    from fignetctl.core.model.properties import property_ranges, ranges_to_json
+    from fignetctl.core.model.properties import property_ranges, ranges_to_json, trajectory_largest_sides
     from fignetctl.core.provenance import file_sha256
     from fignetctl.core.trajectory import read_trajectories
 
@@ -112,8 +113,9 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     if trained_on is not None:
         if file_sha256(trained_on) != payload.get("provenance", {}).get("data_hash"):
             raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")
-        trajectories = read_trajectories(trained_on).trajectories.values()
-        ranges = property_ranges((t.properties, t.static) for t in trajectories)
+        data = read_trajectories(trained_on)
+        sides = np.concatenate([trajectory_largest_sides(data, key) for key in data.trajectories])
+        ranges = property_ranges(((t.properties, t.static) for t in data.trajectories.values()), sides)
         payload["trained_properties"] = ranges_to_json(ranges)
     with atomic_path(destination) as tmp:
         torch.save(payload, tmp)

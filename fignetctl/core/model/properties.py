@@ -11,8 +11,13 @@ a resting cube of friction 0.5 and restitution 0.5 slid 13 cm in 30 steps; of MO
 `trained_properties` is stored in the model file by `fignetctl train` (and kept by export):
 
     {"dynamic": {"mass": [lo, hi], "friction": [lo, hi], "restitution": [lo, hi],
-                 "materials": [[friction, restitution], ...]},
+                 "materials": [[friction, restitution], ...],
+                 "largest_side": [lo, median, hi]},
      "static": {"friction": [lo, hi], "restitution": [lo, hi], "materials": [...]}}
+
+`largest_side` (metres, each moving object's largest bounding-box side in its own frame) tells
+`rollout --sim-scale auto` which sizes the model knows (similarity.py); files without it are
+taken to know the bundled models' movi-b sizes.
 
 `materials` lists the distinct (friction, restitution) pairs when there are at most
 MAX_MATERIALS of them (data with discrete materials, like Kubric's); a scene's pair must then
@@ -31,9 +36,9 @@ MAX_MATERIALS = 16
 MATERIAL_TOLERANCE = 0.02
 
 
-def property_ranges(properties_and_static) -> dict:
+def property_ranges(properties_and_static, largest_sides=None) -> dict:
     """The ranges (and materials) of an iterable of ((O, 3) mass/friction/restitution, (O,)
-    static) pairs."""
+    static) pairs, and the range and median of the moving objects' `largest_sides` (m) if given."""
     rows = {False: [], True: []}
     for properties, static in properties_and_static:
         properties, static = np.asarray(properties, np.float64), np.asarray(static, bool)
@@ -48,7 +53,29 @@ def property_ranges(properties_and_static) -> dict:
             materials = np.unique(values[:, 1:].astype(np.float32), axis=0)
             if len(materials) <= MAX_MATERIALS:
                 ranges[kind]["materials"] = [[round(float(f), 6), round(float(r), 6)] for f, r in materials]
+    sides = np.asarray([] if largest_sides is None else largest_sides, np.float64)
+    if sides.size and "dynamic" in ranges:
+        ranges["dynamic"]["largest_side"] = [float(v) for v in np.percentile(sides, [0, 50, 100])]
     return ranges
+
+
+def trajectory_largest_sides(data, key) -> np.ndarray:
+    """(D,) the largest side (m) of each moving object's scaled mesh in trajectory `key` of a
+    TrajectoryFile (its bounding box in the object frame)."""
+    trajectory = data.trajectories[key]
+    return np.asarray([
+        float(np.ptp(np.asarray(data.meshes[name].vertices, np.float64), axis=0).max() * scale)
+        for name, scale, static in zip(trajectory.mesh_names, trajectory.scales, trajectory.static) if not static
+    ], np.float64)
+
+
+def largest_sides(geometry) -> np.ndarray:
+    """(D,) the largest side (m) of each moving object's bounding box in its own frame."""
+    sides = []
+    for index in np.flatnonzero(~geometry.static):
+        rest = geometry.rest_vertices[geometry.vertex_object == index]
+        sides.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
+    return np.asarray(sides, np.float64)
 
 
 def ranges_to_json(ranges) -> str:

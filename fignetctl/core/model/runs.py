@@ -55,8 +55,8 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
                  free_flight=False, keep_out=False) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
 
-    sim_scale : simulate the scene scaled by this factor (or "auto": to the training objects'
-        size) and map the frames back; the result's frame time is then dt / √sim_scale
+    sim_scale : simulate the scene scaled by this factor (or "auto": similarity.auto_scale with
+        the model's trained_properties) and map the frames back; the result's frame time is then dt / √sim_scale
         (fignetctl.core.model.similarity)
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
@@ -72,7 +72,8 @@ def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, 
     if data.trajectories[key].num_frames < 2:
         raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
     step_dt = simulation_time_step(simulator, data, key, scene_path)
-    scale = similarity.auto_scale(data, key) if sim_scale == "auto" else float(sim_scale)
+    trained = getattr(simulator, "trained_properties", None)
+    scale = similarity.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
     simulated = data
     if scale != 1.0:
         simulated, history = similarity.scaled_scene(data, key, scale)

@@ -22,29 +22,33 @@ import math
 
 import numpy as np
 
+from fignetctl.core.model.properties import trajectory_largest_sides
 from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize
 from fignetctl.errors import FignetError
 
 TRAINING_OBJECT_SIDE = 2.1
 """Metres: the median largest side of the bundled models' training objects (movi-b, 1.4–2.8 m)."""
+TRAINING_SIDE_RANGE = (1.4, 2.8)
+"""Metres: the range of those largest sides; `auto_scale` leaves scenes inside it as they are."""
 
 
 def largest_dynamic_side(data, key) -> float:
     """Largest side (m) of the axis-aligned box of any dynamic object's scaled mesh."""
-    trajectory = data.trajectories[key]
-    sides = [
-        float((data.meshes[name].vertices.max(axis=0) - data.meshes[name].vertices.min(axis=0)).max() * scale)
-        for name, scale, static in zip(trajectory.mesh_names, trajectory.scales, trajectory.static)
-        if not static
-    ]
-    if not sides:
+    sides = trajectory_largest_sides(data, key)
+    if not sides.size:
         raise FignetError("the scene has no dynamic object to simulate")
-    return max(sides)
+    return float(sides.max())
 
 
-def auto_scale(data, key) -> float:
-    """The scale that brings the scene's largest dynamic object to the training objects' size."""
-    return TRAINING_OBJECT_SIDE / largest_dynamic_side(data, key)
+def auto_scale(data, key, trained_properties=None) -> float:
+    """1 for a scene whose largest dynamic object is of a size the model trained on, else the
+    scale that brings it to the training objects' median size. The sizes are the model's
+    `trained_properties` largest_side (properties.py) where it records them, else the bundled
+    models' (TRAINING_SIDE_RANGE, TRAINING_OBJECT_SIDE)."""
+    side = largest_dynamic_side(data, key)
+    known = (trained_properties or {}).get("dynamic", {}).get("largest_side")
+    low, median, high = known if known else (TRAINING_SIDE_RANGE[0], TRAINING_OBJECT_SIDE, TRAINING_SIDE_RANGE[1])
+    return 1.0 if low <= side <= high else median / side
 
 
 def retimed_history(trajectory, dt: float, new_dt: float, gravity):

@@ -29,7 +29,7 @@ from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
-from fignetctl.core.model.properties import property_ranges, ranges_to_json
+from fignetctl.core.model.properties import largest_sides, property_ranges, ranges_to_json
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
@@ -189,7 +189,10 @@ class Trainer:
 
     def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash="", workers=0):
         self.rank, device = distributed.join_process_group(device)
-        simulator.trained_properties = property_ranges((s.geometry.properties, s.geometry.static) for s in scenes)
+        simulator.trained_properties = property_ranges(
+            ((s.geometry.properties, s.geometry.static) for s in scenes),
+            np.concatenate([largest_sides(s.geometry) for s in scenes]) if scenes else None,
+        )
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash, self.workers = device, data_hash, workers

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl import __version__
+from fignetctl.core.stats import median_iqr
 from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.tradeoff"
@@ -73,17 +74,7 @@ class TradeoffConfig:
 QUICK = TradeoffConfig(trajectories=1, steps=2, repeats=1, train_steps=2, frames_per_trajectory=2, quick=True)
 
 
-# -- statistics and the Pareto front -----------------------------------------------------------
-
-
-def median_iqr(values) -> dict:
-    """Finite values -> median, quartiles and n (NaN figures and n=0 when none is finite)."""
-    values = np.asarray(values, np.float64)
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return {"median": float("nan"), "q25": float("nan"), "q75": float("nan"), "n": 0}
-    q25, median, q75 = np.percentile(values, [25, 50, 75])
-    return {"median": float(median), "q25": float(q25), "q75": float(q75), "n": int(values.size)}
+# -- the Pareto front ---------------------------------------------------------------------------
 
 
 def pareto_front(seconds, errors) -> np.ndarray:

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from fignetctl.core import tradeoff
+from fignetctl.core.stats import median_iqr
 
 
 def brute_force_front(seconds, errors):
@@ -43,7 +44,7 @@ def test_pareto_front_small_cases():
 
 
 def point(setting, seconds, error):
-    return {"setting": setting, "seconds": tradeoff.median_iqr(seconds), "error": tradeoff.median_iqr(error), "extra": tradeoff.median_iqr([7.0])}
+    return {"setting": setting, "seconds": median_iqr(seconds), "error": median_iqr(error), "extra": median_iqr([7.0])}
 
 
 def test_higher_is_better_flips_the_accuracy_axis():
@@ -53,9 +54,9 @@ def test_higher_is_better_flips_the_accuracy_axis():
 
 
 def test_median_iqr_ignores_non_finite_values():
-    stat = tradeoff.median_iqr([1.0, 2.0, 3.0, np.nan])
+    stat = median_iqr([1.0, 2.0, 3.0, np.nan])
     assert stat == {"median": 2.0, "q25": 1.5, "q75": 2.5, "n": 3}
-    assert tradeoff.median_iqr([np.nan])["n"] == 0
+    assert median_iqr([np.nan])["n"] == 0
 
 
 def test_write_result_json_csv_and_png(tmp_path):

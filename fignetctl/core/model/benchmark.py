@@ -46,6 +46,7 @@ from fignetctl import __version__
 from fignetctl.core.model.graph import FACE_FACE, MESH_TO_OBJECT, NODE_NODE, OBJECT_TO_MESH, EdgeSet, MultiGraph
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.scene_graph import build_scene_graph, collision_face_pairs
+from fignetctl.core.stats import median_iqr
 from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.bench-memory"
@@ -348,11 +349,6 @@ def mean_std(values) -> dict:
     values = np.asarray(values, np.float64)
     std = float(values.std(ddof=1)) if len(values) > 1 else 0.0
     return {"mean": float(values.mean()), "std": std}
-
-
-def median_iqr(values) -> dict:
-    q25, median, q75 = np.percentile(np.asarray(values, np.float64), [25, 50, 75])
-    return {"median": float(median), "q25": float(q25), "q75": float(q75), "n": len(values)}
 
 
 def summarize_model(per_pair: list[dict]) -> dict:

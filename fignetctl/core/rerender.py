@@ -367,9 +367,9 @@ class _RerunLog:
     """Frames, camera and the object's path in a rerun recording (timeline "frame")."""
 
     def __init__(self, path, motion: ObjectMotion, steps):
-        from fignetctl.core.viz import _import_rerun
+        from fignetctl.core.viz import import_rerun
 
-        self.rr = rr = _import_rerun()
+        self.rr = rr = import_rerun()
         self.rec = rr.RecordingStream("fignetctl")
         self.rec.save(path)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

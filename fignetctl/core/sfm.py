@@ -286,10 +286,9 @@ def log_cameras_to_rerun(path_rrd, cameras: Cameras, image_dir=None, entity_root
     points to a rerun recording (.rrd), atomically. World: z up."""
     from fignetctl.core.atomic import atomic_path
 
-    try:
-        import rerun as rr
-    except ImportError:
-        raise FignetError("logging to rerun needs rerun-sdk: pip install rerun-sdk") from None
+    from fignetctl.core.viz import import_rerun
+
+    rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
         rec = rr.RecordingStream("fignetctl")

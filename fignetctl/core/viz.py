@@ -376,7 +376,8 @@ def render_preview_video(data: TrajectoryFile, trajectory_id, path_mp4, size=(48
 # ----------------------------------------------------------------------------- rerun
 
 
-def _import_rerun():
+def import_rerun():
+    """The rerun module, or a FignetError that says how to install it (the one import of rerun)."""
     try:
         import rerun
     except ImportError:
@@ -452,7 +453,7 @@ def log_trajectory(rec, data: TrajectoryFile, trajectory_id, entity_root: str = 
     <root>/traces/<i>_<mesh> (LineStrips3D), <root>/plots/energy/<term> and
     <root>/plots/lowest_vertex_z (Scalars). Timelines: "frame" (sequence) and "time" (s).
     """
-    rr = _import_rerun()
+    rr = import_rerun()
     trajectory = _get_trajectory(data, trajectory_id)
     _log_meshes(rec, rr, data, trajectory, entity_root)
     _log_traces(rec, rr, trajectory, entity_root)
@@ -477,7 +478,7 @@ def log_trajectory_to_rerun(data: TrajectoryFile, trajectory_id, path_rrd, entit
     Open it with `rerun FILE.rrd`: the meshes move on the "frame" and "time" timelines,
     with energy plots beside them.
     """
-    rr = _import_rerun()
+    rr = import_rerun()
     _get_trajectory(data, trajectory_id)
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
@@ -496,7 +497,7 @@ def log_scalars_to_rerun(path_rrd, entity_root: str, series: dict) -> Path:
 
     series : name -> list of (step, value); logged as <root>/<name> on the "step" timeline
     """
-    rr = _import_rerun()
+    rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
         rec = rr.RecordingStream("fignetctl")

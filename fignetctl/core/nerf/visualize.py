@@ -56,9 +56,9 @@ def render_views_to_folder(model, cameras, indices, folder, scale=None) -> list:
 
 def log_fit_to_rerun(path_rrd, trainer, renderings) -> Path:
     """Loss and PSNR per step, and each held-out view rendered beside its image."""
-    from fignetctl.core.viz import _import_rerun
+    from fignetctl.core.viz import import_rerun
 
-    rr = _import_rerun()
+    rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
         rec = rr.RecordingStream("fignetctl")

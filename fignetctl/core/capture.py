@@ -15,7 +15,7 @@ frames per view, so video frame `k * video_step` is view `k`.
 Output folder (written to a temporary sibling, then renamed into place):
 
     images/view_000.png ...        RGB PNG, width x height
-    video.mp4                      the orbit, 'mp4v', frame k*video_step == view k (optional)
+    video.mp4                      the orbit, H.264, frame k*video_step == view k (optional)
     ground_truth/cameras.npz       fignetctl.core.cameras format: K, c2w (OpenCV), points,
                                    point_colors (a few thousand points unprojected from GT depth)
     ground_truth/depth.npz         depth (N,H,W) float32 metres, z along the optical axis;
@@ -497,19 +497,14 @@ def _render_views(client, config, cameras, progress):
 
 
 def _write_video(client, config, path: Path, progress) -> int:
-    import cv2
+    from fignetctl.core.media import Mp4Writer
 
     steps = np.arange(config.views * config.video_step) / config.video_step
     cameras = orbit_cameras(config, steps)
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), config.video_fps, (config.width, config.height))
-    if not writer.isOpened():
-        raise FignetError(f"OpenCV cannot write the video {path} (codec mp4v)")
-    try:
+    with Mp4Writer(path, config.video_fps, config.width, config.height) as writer:
         for view in progress(cameras["views"], desc="video", unit="frame"):
             rgb, _, _ = render_one(client, config, view, cameras["projection"])
-            writer.write(np.ascontiguousarray(rgb[:, :, ::-1]))
-    finally:
-        writer.release()
+            writer.write(rgb)
     return len(steps)
 
 

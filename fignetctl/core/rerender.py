@@ -393,12 +393,13 @@ class _RerunLog:
 
 def write_rerender(renderer: Rerenderer, cameras, steps, frames_dir, video_path, fps: float, trace=False, rerun_path=None, progress=None) -> dict:
     """Render `steps` (one camera (K, c2w, width, height) per step in `cameras`) to
-    frames_dir/frame_00000.png ... and an mp4 (mp4v), both atomically; optionally a rerun
+    frames_dir/frame_00000.png ... and an H.264 mp4 (media.py), both atomically; optionally a rerun
     recording. Returns timings: background_ms (unedited render, per camera), frame_ms (mean
     per frame, bent pixels only), bent_fraction (mean share of bent pixels)."""
     import cv2
 
     from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.media import Mp4Writer
 
     steps, cameras = list(steps), list(cameras)
     width, height = int(cameras[0][2]), int(cameras[0][3])
@@ -407,10 +408,7 @@ def write_rerender(renderer: Rerenderer, cameras, steps, frames_dir, video_path,
         tmp_dir = stack.enter_context(atomic_directory(frames_dir))
         tmp_video = stack.enter_context(atomic_path(video_path, suffix=".mp4"))
         tmp_rrd = stack.enter_context(atomic_path(rerun_path, suffix=".rrd")) if rerun_path else None
-        writer = cv2.VideoWriter(str(tmp_video), cv2.VideoWriter.fourcc(*"mp4v"), float(fps), (width, height))
-        if not writer.isOpened():
-            raise FignetError(f"{video_path}: OpenCV could not open an mp4v video writer")
-        stack.callback(writer.release)
+        writer = stack.enter_context(Mp4Writer(tmp_video, float(fps), width, height))
         log = _RerunLog(tmp_rrd, renderer.motion, steps) if tmp_rrd else None
         for index, (step, camera) in enumerate(progress(list(zip(steps, cameras))) if progress else zip(steps, cameras)):
             frame = renderer.render(camera, step)
@@ -419,13 +417,12 @@ def write_rerender(renderer: Rerenderer, cameras, steps, frames_dir, video_path,
             image = to_uint8(frame.rgb)
             if trace:
                 draw_trace(image, camera, renderer.motion.positions[steps[: index + 1]])
-            bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-            if not cv2.imwrite(str(tmp_dir / f"frame_{index:05d}.png"), bgr):
+            if not cv2.imwrite(str(tmp_dir / f"frame_{index:05d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
                 raise FignetError(f"{frames_dir}: OpenCV could not write a PNG")
-            writer.write(bgr)
+            writer.write(image)
             if log:
                 log.log(index, step, camera, image)
-        writer.release()
+        writer.close()
         if log:
             log.close()
     return {

@@ -350,26 +350,20 @@ def write_preview_png(data: TrajectoryFile, trajectory_id, path_png, frame: int 
 
 
 def render_preview_video(data: TrajectoryFile, trajectory_id, path_mp4, size=(480, 360), fps=None, progress=None) -> Path:
-    """Render every frame of a trajectory to an mp4 (codec mp4v), atomically.
+    """Render every frame of a trajectory to an H.264 mp4 (media.py), atomically.
 
     fps : frames per second of the video; default 1 / dt, so the video plays in real time
     progress : optional wrapper for the frame iterator (a progress bar)
     """
-    import cv2
+    from fignetctl.core.media import Mp4Writer
 
     renderer = PreviewRenderer(data, trajectory_id, size)
     fps = float(fps) if fps else 1.0 / float(data.dt)
     frames = range(renderer.trajectory.num_frames)
     path_mp4 = Path(path_mp4)
-    with atomic_path(path_mp4, suffix=".mp4") as tmp:
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), fps, (int(size[0]), int(size[1])))
-        if not writer.isOpened():
-            raise FignetError(f"{path_mp4}: OpenCV could not open an mp4v video writer")
-        try:
-            for frame in progress(frames) if progress else frames:
-                writer.write(cv2.cvtColor(renderer.render(frame), cv2.COLOR_RGB2BGR))
-        finally:
-            writer.release()
+    with atomic_path(path_mp4, suffix=".mp4") as tmp, Mp4Writer(tmp, fps, int(size[0]), int(size[1])) as writer:
+        for frame in progress(frames) if progress else frames:
+            writer.write(renderer.render(frame))
     return path_mp4
 
 

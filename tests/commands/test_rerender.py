@@ -7,6 +7,7 @@ from fignetctl.core.cameras import look_at_c2w
 from fignetctl.cli import cli
 from fignetctl.core import rerender
 from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.media import read_video_info
 from fignetctl.core.nerf import save_nerf
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
 from tests.core.test_rerender import BOX_LOWER, BOX_UPPER, REST, solid_field, top_camera, write_volume
@@ -62,7 +63,7 @@ def test_fixed_camera_writes_frames_and_video(inputs, tmp_path):
     assert result.exit_code == 0, result.output
     assert result.stdout.strip().splitlines()[-1] == str(video)
     pngs = sorted((tmp_path / "out_frames").glob("frame_*.png"))
-    assert len(pngs) == FRAMES and len(read_video(video)) == FRAMES
+    assert len(pngs) == FRAMES and len(read_video(video)) == FRAMES and read_video_info(video)["codec"] == "h264"
     first, last = (cv2.imread(str(p))[..., ::-1] for p in (pngs[0], pngs[-1]))
     assert first.shape == (32, 32, 3)
     camera = top_camera(size=32, focal=40.0)

@@ -6,6 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import cli
+from fignetctl.core.media import read_video_info
 from fignetctl.core.trajectory import write_trajectories
 from tests.conftest import INDEPENDENT_FIXTURE, box_drop_file
 
@@ -36,6 +37,7 @@ def test_video_has_every_frame_and_shows_motion(box_file, tmp_path):
             break
         frames.append(frame)
     assert len(frames) == 10 and frames[0].shape == (360, 480, 3)
+    assert read_video_info(video)["codec"] == "h264"
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.5
 
 

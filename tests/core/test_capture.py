@@ -7,6 +7,7 @@ import pytest
 
 from fignetctl.core import capture
 from fignetctl.core.cameras import read_cameras
+from fignetctl.core.media import read_video_info
 from fignetctl.errors import FignetError
 
 TINY = dict(views=8, width=96, height=72, texture_size=256, points=300, video_step=2)
@@ -41,7 +42,7 @@ def test_every_file_is_present_and_readable(tiny_capture):
         assert image.shape == (72, 96, 3) and image.std() > 10
     video = cv2.VideoCapture(str(out / "video.mp4"))
     assert int(video.get(cv2.CAP_PROP_FRAME_COUNT)) == 16 == summary["video_frames"]
-    assert video.read()[1].shape == (72, 96, 3)
+    assert video.read()[1].shape == (72, 96, 3) and read_video_info(out / "video.mp4")["codec"] == "h264"
     assert (cameras.width, cameras.height) == (96, 72) and len(cameras.points) == 300
     assert depth.shape == masks.shape == (8, 72, 96) and depth.dtype == np.float32 and masks.dtype == np.int16
     assert np.isfinite(depth).all() and (masks >= 0).all()  # the backdrop closes the scene
@@ -193,7 +194,7 @@ def test_video_frame_k_times_step_is_view_k(tiny_capture):
     video = cv2.VideoCapture(str(out / "video.mp4"))
     frames = [video.read()[1].astype(float) for _ in range(5)]
     views = [cv2.imread(str(out / "images" / f"view_{k:03d}.png")).astype(float) for k in range(3)]
-    for k in range(3):  # video_step 2: frames 0, 2, 4 are views 0, 1, 2; mp4v is lossy
+    for k in range(3):  # video_step 2: frames 0, 2, 4 are views 0, 1, 2; H.264 is lossy
         difference = np.abs(frames[2 * k] - views[k]).mean()
         neighbour = np.abs(frames[2 * k + (1 if k < 2 else -1)] - views[k]).mean()
         assert difference < 15 and difference < 0.5 * neighbour

@@ -69,14 +69,15 @@ $(DATA)/%-movi-b-tuned.pt: $(DATA)/%-movi-b-base.pt
 $(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt
 	$(BIN)/fignetctl train $(DATA)/movi-b-train.h5 -o $@ --model $* $(POLISH_FLAGS) --log-csv $(DATA)/$*-loss.csv $(if $(wildcard $@),--resume,--init-from $<)
 
-.PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt
+# Kept when make is interrupted: a half-trained model file is where `--resume` starts from.
+.PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt $(DATA)/%-movi-b.pt $(DATA)/%-movi-b-velocities.pt
 
 # The velocity-state models (not bundled yet; docs/simulator.md has their figures): 4000
 # trajectories (6.7x the bundled models' data), frame t and instantaneous velocities in, static
 # nodes that do not aggregate, MSE, graphs built by a worker process, bf16 where the CPU has it.
 # One torch thread: the worker takes the other core. Resumable (re-run the target).
 VELOCITY_FLAGS := --size small --max-faces 256 --collision-radius 0.2 --state velocities --no-static-receivers --loss mse \
-                  --batch-size 8 --steps 12000 --checkpoint-every 250 --seed 0 --workers 1 --precision auto
+                  --batch-size 8 --steps 8000 --checkpoint-every 250 --seed 0 --workers 1 --precision auto
 
 $(DATA)/movi-b-train-4k.h5: | setup
 	mkdir -p $(DATA)

@@ -84,8 +84,11 @@ _SUMMARIES = {
 @click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="fignetctl")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
-@click.option("-q", "--quiet", is_flag=True, help="Only errors.")
-def cli(verbose, quiet):
+@click.option("-q", "--quiet", is_flag=True, help="Only errors: no log lines, no progress.")
+@click.option("--progress", "progress_mode", type=click.Choice(["auto", "always", "never"]), default="auto", show_default=True,
+              help="Progress bars on stderr: redrawn on a terminal; elsewhere (logs of batch jobs) 'auto' writes a line "
+                   "every 30 s and at the end, 'always' one per second.")
+def cli(verbose, quiet, progress_mode):
     """fignetctl: photographs to a simulated, re-rendered what-if video.
 
     Every command reads files and writes files, so stages chain in shell
@@ -96,6 +99,9 @@ def cli(verbose, quiet):
       fignetctl make-dataset --preset movi-b -n 8 --seed 1 -o b.h5
       fignetctl show b.h5 --video b.mp4
     """
+    from fignetctl.commands.options import set_progress_mode
+
+    set_progress_mode("never" if quiet else progress_mode)
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose + 1, 2)]
     logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
 

@@ -30,3 +30,21 @@ def test_library_error_becomes_one_line_error(tmp_path):
     assert result.exit_code != 0
     assert "Traceback" not in result.output
     assert result.output.strip().count("\n") <= 2
+
+
+def test_progress_in_logs_is_plain_lines_and_can_be_silenced(tmp_path):
+    """stderr is not a terminal under CliRunner, as in a batch job's log."""
+    from fignetctl.core.trajectory import write_trajectories
+    from tests.conftest import box_drop_file
+
+    data = write_trajectories(tmp_path / "b.h5", box_drop_file(frames=6))
+    outputs = {}
+    for flags in (["--progress", "always"], ["--progress", "never"], ["-q", "--progress", "always"], []):
+        video = tmp_path / f"v{len(outputs)}.mp4"
+        result = CliRunner().invoke(cli, [*flags, "show", str(data), "--video", str(video)])
+        assert result.exit_code == 0, result.output
+        outputs[" ".join(flags)] = result.output
+    lines = [line for line in outputs["--progress always"].splitlines() if line.startswith("video:")]
+    assert lines and lines[-1].startswith("video: 6/6 frame") and "\r" not in outputs["--progress always"]
+    for quiet in ("--progress never", "-q --progress always", ""):  # auto: a line every 30 s, and this is quicker
+        assert "video:" not in outputs[quiet]

@@ -66,13 +66,64 @@ def resolve_device(device):
     return device
 
 
+PROGRESS_MODES = ("auto", "always", "never")
+LOG_INTERVAL_SECONDS = 30.0
+"""How often a progress line is written when stderr is not a terminal (`--progress auto`)."""
+_progress_mode = {"mode": "auto"}
+
+
+def set_progress_mode(mode: str) -> None:
+    """The group's --progress (and -q, which means never) for every bar of this process."""
+    if mode not in PROGRESS_MODES:
+        raise ValueError(f"unknown progress mode {mode!r}")
+    _progress_mode["mode"] = mode
+
+
+class _LogLines:
+    """A stream for tqdm where stderr is not a terminal: each refresh becomes one plain line
+    (no carriage returns), so logs of batch jobs show how far a command got."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text):
+        text = text.replace("\r", "").strip()
+        if text:
+            self.stream.write(text + "\n")
+
+    def flush(self):
+        self.stream.flush()
+
+
 def progress(iterable=None, **kwargs):
-    """A tqdm progress bar on stderr, hidden when stderr is not a terminal unless forced."""
+    """A tqdm progress bar on stderr. On a terminal it redraws in place. Elsewhere it writes
+    plain lines: with `--progress auto`, one every LOG_INTERVAL_SECONDS and one at the end, for
+    work that takes longer than that; with `--progress always`, one a second from the start.
+    `--progress never`, `-q` and disable=True show nothing."""
     import sys
 
     from tqdm import tqdm
 
-    kwargs.setdefault("file", sys.stderr)
-    kwargs.setdefault("dynamic_ncols", True)
-    kwargs.setdefault("disable", None)
-    return tqdm(iterable, **kwargs)
+    mode, stream = _progress_mode["mode"], kwargs.pop("file", sys.stderr)
+    terminal = hasattr(stream, "isatty") and stream.isatty()
+    kwargs.setdefault("dynamic_ncols", terminal)
+    if mode == "never" or kwargs.get("disable") is True:
+        kwargs["disable"] = True
+    elif not terminal:
+        stream = _LogLines(stream)
+        interval = LOG_INTERVAL_SECONDS if mode == "auto" else 1.0
+        kwargs.update(disable=False, mininterval=interval, delay=interval if mode == "auto" else 0.0,
+                      bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed}<{remaining}, {rate_fmt}]{postfix}")
+        return _log_bar()(iterable, file=stream, **kwargs)
+    return tqdm(iterable, file=stream, **kwargs)
+
+
+def _log_bar():
+    """tqdm whose set_postfix waits for the next line instead of writing one of its own."""
+    from tqdm import tqdm
+
+    class LogBar(tqdm):
+        def set_postfix(self, ordered_dict=None, refresh=True, **kwargs):
+            super().set_postfix(ordered_dict, refresh=False, **kwargs)
+
+    return LogBar

@@ -367,10 +367,10 @@ class _RerunLog:
     """Frames, camera and the object's path in a rerun recording (timeline "frame")."""
 
     def __init__(self, path, motion: ObjectMotion, steps):
-        from fignetctl.core.viz import import_rerun
+        from fignetctl.core.viz import import_rerun, recording_stream
 
         self.rr = rr = import_rerun()
-        self.rec = rr.RecordingStream("fignetctl")
+        self.rec = recording_stream(path)
         self.rec.save(path)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         path_points = np.asarray(motion.positions[list(steps)], np.float32)

@@ -286,12 +286,12 @@ def log_cameras_to_rerun(path_rrd, cameras: Cameras, image_dir=None, entity_root
     points to a rerun recording (.rrd), atomically. World: z up."""
     from fignetctl.core.atomic import atomic_path
 
-    from fignetctl.core.viz import import_rerun
+    from fignetctl.core.viz import import_rerun, recording_stream
 
     rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = rr.RecordingStream("fignetctl")
+        rec = recording_stream(tmp)
         rec.save(tmp)
         try:
             rec.log(entity_root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)

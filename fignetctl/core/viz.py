@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -379,6 +380,19 @@ def import_rerun():
     return rerun
 
 
+RECORDING_ID_ENV = "FIGNETCTL_RECORDING_ID"
+
+
+def recording_stream(path_rrd):
+    """A rerun RecordingStream for a recording written to `path_rrd` (or a temporary file
+    beside it). Application "fignetctl"; recording id $FIGNETCTL_RECORDING_ID, else the
+    absolute path of the file's folder, so the recordings a scene's stages write into one
+    folder open in the viewer as one recording."""
+    rr = import_rerun()
+    recording_id = os.environ.get(RECORDING_ID_ENV) or str(Path(path_rrd).resolve().parent)
+    return rr.RecordingStream("fignetctl", recording_id=recording_id)
+
+
 def _object_entity(root: str, index: int, name: str) -> str:
     return f"{root}/objects/{index:02d}_{name}"
 
@@ -476,7 +490,7 @@ def log_trajectory_to_rerun(data: TrajectoryFile, trajectory_id, path_rrd, entit
     _get_trajectory(data, trajectory_id)
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = rr.RecordingStream("fignetctl")
+        rec = recording_stream(tmp)
         rec.save(tmp, default_blueprint=_blueprint(entity_root))
         try:
             log_trajectory(rec, data, trajectory_id, entity_root)
@@ -494,7 +508,7 @@ def log_scalars_to_rerun(path_rrd, entity_root: str, series: dict) -> Path:
     rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = rr.RecordingStream("fignetctl")
+        rec = recording_stream(tmp)
         rec.save(tmp)
         for name, points in series.items():
             for step, value in points:

@@ -110,6 +110,27 @@ def test_rerun_recording_passes_rrd_verify(box_file, tmp_path):
     assert check.returncode == 0, check.stdout + check.stderr
 
 
+@pytest.mark.skipif(_rerun_executable() is None, reason="the rerun viewer CLI is not installed")
+def test_recordings_in_one_folder_share_one_recording_id(box_file, tmp_path, monkeypatch):
+    import subprocess
+
+    def recording_id(path):
+        printed = subprocess.run([_rerun_executable(), "rrd", "print", str(path)], capture_output=True, text=True, timeout=60)
+        assert printed.returncode == 0, printed.stderr
+        return printed.stdout.split("Recording,", 1)[1].split(")", 1)[0].split(",")[1].strip().strip('"')
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    paths = [tmp_path / "a" / "one.rrd", tmp_path / "a" / "two.rrd", tmp_path / "b" / "one.rrd"]
+    for rrd in paths:
+        assert CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(rrd)]).exit_code == 0
+    ids = [recording_id(p) for p in paths]
+    assert ids[0] == ids[1] == str((tmp_path / "a").resolve()) != ids[2]
+    monkeypatch.setenv("FIGNETCTL_RECORDING_ID", "batch-7")
+    assert CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(paths[2]), "--overwrite"]).exit_code == 0
+    assert recording_id(paths[2]) == "batch-7"
+
+
 def test_wrong_format_version_is_one_line_error(box_file):
     import h5py
 

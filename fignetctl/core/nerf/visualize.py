@@ -56,12 +56,12 @@ def render_views_to_folder(model, cameras, indices, folder, scale=None) -> list:
 
 def log_fit_to_rerun(path_rrd, trainer, renderings) -> Path:
     """Loss and PSNR per step, and each held-out view rendered beside its image."""
-    from fignetctl.core.viz import import_rerun
+    from fignetctl.core.viz import import_rerun, recording_stream
 
     rr = import_rerun()
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = rr.RecordingStream("fignetctl")
+        rec = recording_stream(tmp)
         rec.save(tmp)
         for record in trainer.history:
             rec.set_time("step", sequence=int(record["step"]))

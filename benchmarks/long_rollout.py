@@ -14,6 +14,7 @@ import json
 
 import numpy as np
 
+from fignetctl.core.atomic import atomic_path
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
@@ -75,7 +76,7 @@ def main():
         "fraction_objects_drift_below_1cm": float(np.mean(drifts < 0.01)),
     }
     print(json.dumps(summary))
-    with open(args.out, "w") as f:
+    with atomic_path(args.out) as tmp, open(tmp, "w") as f:
         json.dump({"model": args.model, "data": args.data, "steps": args.steps, "free_flight": args.free_flight, "keep_out": args.keep_out, "sleep": args.sleep, "summary": summary, "trajectories": rows}, f, indent=1)
 
 

@@ -61,6 +61,18 @@ class LazyGroup(click.Group):
             raise click.ClickException(str(error)) from None
         except MemoryError:
             raise click.ClickException("out of memory: try a smaller input or batch") from None
+        except OSError as error:  # a file the command could not open, read or write
+            raise click.ClickException(os_error_sentence(error)) from None
+
+
+def os_error_sentence(error: OSError) -> str:
+    """One line for an operating-system error: the file, what went wrong, what to do when clear."""
+    import errno
+
+    what = (error.strerror or str(error)).rstrip(".")
+    where = f"{error.filename}: " if error.filename else ""
+    advice = {errno.ENOSPC: "; free some disk space and run it again", errno.EACCES: "; check the file's permissions"}
+    return f"{where}{what[:1].lower()}{what[1:]}{advice.get(error.errno, '')}"
 
 
 _SUMMARIES = {

@@ -7,7 +7,7 @@ import click
 overwrite_option = click.option(
     "--overwrite", is_flag=True, help="Replace outputs that already exist."
 )
-seed_option = click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+seed_option = click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True, help="Random seed, 0 to 2**32 - 1.")
 device_option = click.option(
     "--device",
     type=click.Choice(["cpu", "cuda", "auto"]),

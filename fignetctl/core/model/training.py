@@ -286,6 +286,7 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
     """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
     or a new run that starts from the weights and normaliser statistics of `init_from`."""
     dataset_path = Path(dataset_path)
+    data = read_trajectories(dataset_path)  # a clear error for a missing or damaged file, before hashing it
     data_hash = file_sha256(dataset_path)
     if resume_from is not None:
         simulator, state = load_checkpoint(resume_from, with_training_state=True)
@@ -295,7 +296,6 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
             raise FignetError(f"{resume_from}: was trained on other data than {dataset_path}; start a new run")
         stored = {"target_keeps_noise": False, **json.loads(state["training_config"])}  # absent: a run before the field (precision too)
         training_config = TrainingConfig(**{**stored, "steps": training_config.steps})
-    data = read_trajectories(dataset_path)
     if resume_from is None:
         simulator_config = dataclasses.replace(simulator_config, dt=float(data.dt), gravity=tuple(float(g) for g in data.gravity))
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched

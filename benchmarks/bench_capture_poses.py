@@ -62,7 +62,9 @@ def compare(estimated, truth_c2w: np.ndarray, scene_size: float, true_focal: flo
     # is the orientations' own error, free of the centre fit's.
     u, _, vt = np.linalg.svd(np.einsum("nij,nkj->ik", truth_c2w[:, :3, :3], estimated.c2w[:, :3, :3]))
     best = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
-    best_fit_error = rotation_angle_deg(np.einsum("nji,jk,nkl->nil", truth_c2w[:, :3, :3], best, estimated.c2w[:, :3, :3]))
+    best_fit_error = rotation_angle_deg(
+        np.einsum("nji,jk,nkl->nil", truth_c2w[:, :3, :3], best, estimated.c2w[:, :3, :3])
+    )
     return {
         "centre_error_mean_mm": 1000 * float(centre_error.mean()),
         "centre_error_max_mm": 1000 * float(centre_error.max()),
@@ -96,7 +98,9 @@ def true_mean_camera_height(truth) -> float:
     return float(truth.centres[:, 2].mean())  # the table top is z = 0
 
 
-def bench_images(capture: Path, work: Path, truth, scene_size: float, height: float | None, plot_path=None) -> dict:
+def bench_images(
+    capture: Path, work: Path, truth, scene_size: float, height: float | None, plot_path=None
+) -> dict:
     output = work / f"images-{height}" / "cameras.npz"
     args = ["--images", str(capture / "images"), "-o", str(output)]
     if height is not None:
@@ -107,28 +111,55 @@ def bench_images(capture: Path, work: Path, truth, scene_size: float, height: fl
     order = [names.index(str(n)) for n in estimated.image_names]
     if plot_path is not None:
         plot(estimated, truth.c2w[order], plot_path)
-    return {"input": "images", "camera_height_m": height, "registered": len(estimated), "total": len(truth),
-            "sparse_points": len(estimated.points), "seconds": seconds, "summary": summary,
-            **compare(estimated, truth.c2w[order], scene_size, truth.K[0, 0, 0])}
+    return {
+        "input": "images",
+        "camera_height_m": height,
+        "registered": len(estimated),
+        "total": len(truth),
+        "sparse_points": len(estimated.points),
+        "seconds": seconds,
+        "summary": summary,
+        **compare(estimated, truth.c2w[order], scene_size, truth.K[0, 0, 0]),
+    }
 
 
-def bench_video(capture: Path, work: Path, scene: dict, scene_size: float, height: float, every: int, matcher: str) -> dict:
+def bench_video(
+    capture: Path, work: Path, scene: dict, scene_size: float, height: float, every: int, matcher: str
+) -> dict:
     from fignetctl.core.capture import CaptureSettings, orbit_cameras
 
     settings = scene["settings"]
     config = CaptureSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
     output = work / f"video-{every}-{matcher}" / "cameras.npz"
-    args = ["--video", str(capture / "video.mp4"), "--every", str(every), "--matcher", matcher, "-o", str(output),
-            "--camera-height", f"{height:.6f}"]
+    args = [
+        "--video",
+        str(capture / "video.mp4"),
+        "--every",
+        str(every),
+        "--matcher",
+        matcher,
+        "-o",
+        str(output),
+        "--camera-height",
+        f"{height:.6f}",
+    ]
     seconds, summary = run_capture_poses(args)
     estimated = read_cameras(output)
     frames = np.array([int(Path(str(n)).stem.split("_")[1]) for n in estimated.image_names])
     total_frames = config.views * config.video_step
     picked = len(list((output.parent / "images").glob("*.png")))
     truth_c2w = orbit_cameras(config, frames / config.video_step)["c2w"]
-    return {"input": f"video --every {every} --matcher {matcher}", "camera_height_m": height, "registered": len(estimated),
-            "total": picked, "video_frames": total_frames, "sparse_points": len(estimated.points),
-            "seconds": seconds, "summary": summary, **compare(estimated, truth_c2w, scene_size, config_focal(config))}
+    return {
+        "input": f"video --every {every} --matcher {matcher}",
+        "camera_height_m": height,
+        "registered": len(estimated),
+        "total": picked,
+        "video_frames": total_frames,
+        "sparse_points": len(estimated.points),
+        "seconds": seconds,
+        "summary": summary,
+        **compare(estimated, truth_c2w, scene_size, config_focal(config)),
+    }
 
 
 def config_focal(config) -> float:
@@ -180,11 +211,22 @@ def format_row(row: dict) -> str:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--capture", type=Path, default=None, help="An existing render-views folder (default: render one).")
-    parser.add_argument("--video-runs", nargs="+", default=["3:auto", "3:sequential", "6:auto"], help="EVERY:MATCHER pairs for the video runs.")
+    parser.add_argument(
+        "--capture", type=Path, default=None, help="An existing render-views folder (default: render one)."
+    )
+    parser.add_argument(
+        "--video-runs",
+        nargs="+",
+        default=["3:auto", "3:sequential", "6:auto"],
+        help="EVERY:MATCHER pairs for the video runs.",
+    )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    parser.add_argument("--plot", type=Path, default=Path(__file__).parents[1] / "docs" / "images" / "capture-poses.png",
-                        help="Top and side views of the first run against the truth.")
+    parser.add_argument(
+        "--plot",
+        type=Path,
+        default=Path(__file__).parents[1] / "docs" / "images" / "capture-poses.png",
+        help="Top and side views of the first run against the truth.",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-capture-poses-") as tmp:
         tmp = Path(tmp)
@@ -202,22 +244,39 @@ def main():
         low, high = np.array(scene["bounds"], float)
         scene_size = float(np.linalg.norm(high - low))
         height = true_mean_camera_height(truth)
-        rows = [bench_images(capture, tmp, truth, scene_size, height, args.plot), bench_images(capture, tmp, truth, scene_size, None)]
+        rows = [
+            bench_images(capture, tmp, truth, scene_size, height, args.plot),
+            bench_images(capture, tmp, truth, scene_size, None),
+        ]
         for run in args.video_runs:
             every, matcher = run.split(":")
             try:
                 rows.append(bench_video(capture, tmp, scene, scene_size, height, int(every), matcher))
             except CommandFailed as failure:
                 seconds, message = failure.args
-                rows.append({"input": f"video --every {every} --matcher {matcher}", "error": message, "seconds": seconds})
+                rows.append(
+                    {
+                        "input": f"video --every {every} --matcher {matcher}",
+                        "error": message,
+                        "seconds": seconds,
+                    }
+                )
     for row in rows:
         print(format_row(row))
     document = {
-        "benchmark": "capture-poses on the bundled capture", "capture_settings": scene["settings"],
-        "scene_size_m": scene_size, "true_mean_camera_height_m": height, "render_seconds": render_seconds,
+        "benchmark": "capture-poses on the bundled capture",
+        "capture_settings": scene["settings"],
+        "scene_size_m": scene_size,
+        "true_mean_camera_height_m": height,
+        "render_seconds": render_seconds,
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
         "capture_module_sha256": hashlib.sha256(Path(capture_module.__file__).read_bytes()).hexdigest(),
-        "goals": {"registered": "all", "centre_error_max_pct_scene": 1.0, "rotation_error_max_deg": 0.5, "table_tilt_deg": 2.0},
+        "goals": {
+            "registered": "all",
+            "centre_error_max_pct_scene": 1.0,
+            "rotation_error_max_deg": 0.5,
+            "table_tilt_deg": 2.0,
+        },
         "rows": rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -22,11 +22,18 @@ def throughput(assets, config, count, jobs):
     results = list(movi.generate(assets, config, seed=1, indices=range(count), jobs=jobs))
     seconds = time.perf_counter() - started
     stats = movi.dataset_stats(results, seconds, jobs)
-    return {"jobs": jobs, "seconds": seconds, "trajectories_per_minute": stats["trajectories_per_minute"], "dropped": stats["dropped"]}
+    return {
+        "jobs": jobs,
+        "seconds": seconds,
+        "trajectories_per_minute": stats["trajectories_per_minute"],
+        "dropped": stats["dropped"],
+    }
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("-n", type=int, default=16)
     parser.add_argument("--preset", default="movi-b")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -34,9 +41,20 @@ def main():
     assets = shapes.load_shapes(args.preset, "train")
     config = movi.movi_config(args.preset)
     rows = [throughput(assets, config, args.n, jobs) for jobs in (1, 2)]
-    report = {"preset": args.preset, "trajectories": args.n, "fps": config.fps, "duration_s": config.duration, "cpu_count": os.cpu_count(), "load_average_1min": os.getloadavg()[0], "runs": rows, "speedup_2_jobs": rows[0]["seconds"] / rows[1]["seconds"]}
+    report = {
+        "preset": args.preset,
+        "trajectories": args.n,
+        "fps": config.fps,
+        "duration_s": config.duration,
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0],
+        "runs": rows,
+        "speedup_2_jobs": rows[0]["seconds"] / rows[1]["seconds"],
+    }
     for row in rows:
-        print(f"make-dataset {args.preset}: {row['trajectories_per_minute']:.0f} trajectories/minute with {row['jobs']} job(s)")
+        print(
+            f"make-dataset {args.preset}: {row['trajectories_per_minute']:.0f} trajectories/minute with {row['jobs']} job(s)"
+        )
     print(f"2 jobs / 1 job speed-up: {report['speedup_2_jobs']:.2f}x")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))

@@ -71,7 +71,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--capture", type=Path, required=True)
     parser.add_argument("--nerf", type=Path)
-    parser.add_argument("--cameras", type=Path, help="cameras the NeRF was fitted with (default: the GT cameras)")
+    parser.add_argument(
+        "--cameras", type=Path, help="cameras the NeRF was fitted with (default: the GT cameras)"
+    )
     parser.add_argument("--carve", action="store_true", help="GT-depth carving instead of a trained NeRF")
     parser.add_argument("--threshold", type=float, default=50.0)
     parser.add_argument("--resolution", type=int, default=96)
@@ -82,7 +84,13 @@ def main():
     import trimesh
 
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.mesh_extraction import ExtractionSettings, View, consistent_box, extract_object, view_masks
+    from fignetctl.core.mesh_extraction import (
+        ExtractionSettings,
+        View,
+        consistent_box,
+        extract_object,
+        view_masks,
+    )
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.segmentation import iou
 
@@ -97,11 +105,19 @@ def main():
 
         depth = np.load(capture / "ground_truth" / "depth.npz")["depth"]
         nerf_path = capture / "carved_nerf.pt"
-        carved_nerf(nerf_path, depth, cameras, np.array([[-0.35, -0.35, -0.04], [0.35, 0.35, 0.25]]), resolution=192)
+        carved_nerf(
+            nerf_path, depth, cameras, np.array([[-0.35, -0.35, -0.04], [0.35, 0.35, 0.25]]), resolution=192
+        )
     model = load_nerf(nerf_path)
-    results = {"capture": str(capture), "cameras": str(args.cameras or "ground truth"), "density": "GT-depth carving (192^3 grid)" if args.carve else f"NeRF {nerf_path}",
-               "nerf_metrics": {k: v for k, v in model.metrics.items() if k != "held_out"}, "threshold": args.threshold,
-               "resolution": args.resolution, "objects": []}
+    results = {
+        "capture": str(capture),
+        "cameras": str(args.cameras or "ground truth"),
+        "density": "GT-depth carving (192^3 grid)" if args.carve else f"NeRF {nerf_path}",
+        "nerf_metrics": {k: v for k, v in model.metrics.items() if k != "held_out"},
+        "threshold": args.threshold,
+        "resolution": args.resolution,
+        "objects": [],
+    }
     for obj in json.loads((capture / "prompts.json").read_text())["objects"]:
         views = []
         started = time.perf_counter()
@@ -109,8 +125,20 @@ def main():
             index = cameras.index_of(point["image"])
             image = cv2.imread(str(capture / "images" / point["image"]))[..., ::-1].copy()
             rendering = model.render(cameras, index)
-            depth_image = np.where(rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0)
-            views.append(View(point["image"], cameras.K[index], cameras.c2w[index], depth_image, rendering.opacity, image, [(point["u"], point["v"])]))
+            depth_image = np.where(
+                rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0
+            )
+            views.append(
+                View(
+                    point["image"],
+                    cameras.K[index],
+                    cameras.c2w[index],
+                    depth_image,
+                    rendering.opacity,
+                    image,
+                    [(point["u"], point["v"])],
+                )
+            )
         view_masks(views)
         first_ious = {v.name: iou(v.mask, truth_masks[cameras.index_of(v.name)] == obj["id"]) for v in views}
         settings = ExtractionSettings(threshold=args.threshold)
@@ -126,14 +154,28 @@ def main():
             extraction = extract_object(model.density, box, settings)
             seconds = time.perf_counter() - started
             chamfer, volume_iou = mesh_errors(extraction.object_mesh, truth)
-            rows.append({"faces": faces, "faces_made": len(extraction.object_mesh.faces), "seconds": round(seconds, 3),
-                         "chamfer_fraction": round(chamfer, 4), "volume_iou": None if volume_iou is None else round(volume_iou, 3),
-                         "watertight": bool(extraction.object_mesh.is_watertight)})
+            rows.append(
+                {
+                    "faces": faces,
+                    "faces_made": len(extraction.object_mesh.faces),
+                    "seconds": round(seconds, 3),
+                    "chamfer_fraction": round(chamfer, 4),
+                    "volume_iou": None if volume_iou is None else round(volume_iou, 3),
+                    "watertight": bool(extraction.object_mesh.is_watertight),
+                }
+            )
             print(obj["name"], rows[-1], flush=True)
-        results["objects"].append({"name": obj["name"], "mask_iou": {k: round(v, 3) for k, v in ious.items()},
-                                   "mask_iou_single_view": {k: round(v, 3) for k, v in first_ious.items()},
-                                   "mask_seconds": round(mask_seconds, 2), "size": truth.extents.round(3).tolist(),
-                                   "box": np.asarray(box).round(3).tolist(), "faces": rows})
+        results["objects"].append(
+            {
+                "name": obj["name"],
+                "mask_iou": {k: round(v, 3) for k, v in ious.items()},
+                "mask_iou_single_view": {k: round(v, 3) for k, v in first_ious.items()},
+                "mask_seconds": round(mask_seconds, 2),
+                "size": truth.extents.round(3).tolist(),
+                "box": np.asarray(box).round(3).tolist(),
+                "faces": rows,
+            }
+        )
         print(obj["name"], "mask IoU", results["objects"][-1]["mask_iou"], flush=True)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(results, indent=1))
@@ -151,7 +193,9 @@ def plot(results, path):
         rows = obj["faces"]
         x = [r["faces_made"] for r in rows]
         axes[0].plot(x, [100 * r["chamfer_fraction"] for r in rows], "o-", label=obj["name"])
-        axes[1].plot([r["seconds"] for r in rows], [100 * r["chamfer_fraction"] for r in rows], "o", label=obj["name"])
+        axes[1].plot(
+            [r["seconds"] for r in rows], [100 * r["chamfer_fraction"] for r in rows], "o", label=obj["name"]
+        )
     axes[0].set(xscale="log", xlabel="faces of the object mesh", ylabel="Chamfer, % of object size")
     axes[1].set(xlabel="extraction seconds (object + environment)", ylabel="Chamfer, % of object size")
     axes[0].legend()

@@ -65,15 +65,28 @@ def fit_preset(capture, preset, steps, evaluations):
         trainer.model.refresh_occupancy()
         result, renderings = trainer.evaluate(truth)
         depth_error = result.get("depth_median_abs_error", float("nan"))
-        curve.append({"step": trainer.step, "train_seconds": round(trainer.seconds, 2), "held_out_psnr": round(result["psnr"], 3),
-                      "depth_median_abs_error_m": depth_error, "depth_error_percent_of_scene": 100 * depth_error / scene_size,
-                      "occupied_fraction": round(trainer.model.occupancy.fraction, 4)})
+        curve.append(
+            {
+                "step": trainer.step,
+                "train_seconds": round(trainer.seconds, 2),
+                "held_out_psnr": round(result["psnr"], 3),
+                "depth_median_abs_error_m": depth_error,
+                "depth_error_percent_of_scene": 100 * depth_error / scene_size,
+                "occupied_fraction": round(trainer.model.occupancy.fraction, 4),
+            }
+        )
         print(preset, curve[-1], flush=True)
     summary = {
-        "preset": preset, "config": dataclasses.asdict(config), "steps": steps,
+        "preset": preset,
+        "config": dataclasses.asdict(config),
+        "steps": steps,
         "image_size": [trainer.views.cameras.width, trainer.views.cameras.height],
-        "train_views": len(trainer.train_views), "held_out_views": [int(i) for i in trainer.held_out_views],
-        "scene_size_m": scene_size, "final": curve[-1], "wall_seconds": round(time.perf_counter() - started, 1), "curve": curve,
+        "train_views": len(trainer.train_views),
+        "held_out_views": [int(i) for i in trainer.held_out_views],
+        "scene_size_m": scene_size,
+        "final": curve[-1],
+        "wall_seconds": round(time.perf_counter() - started, 1),
+        "curve": curve,
     }
     return summary, trainer, renderings, truth
 
@@ -91,7 +104,9 @@ def plot_curves(results, path):
         axes[0].plot(seconds, [p["held_out_psnr"] for p in result["curve"]], "o-", label=label)
         axes[1].plot(seconds, [p["depth_error_percent_of_scene"] for p in result["curve"]], "o-", label=label)
     axes[0].axhline(25, color="grey", ls=":", lw=1)
-    axes[0].set(xlabel="training time (s, CPU)", ylabel="held-out PSNR (dB)", title="fit-nerf on the bundled capture")
+    axes[0].set(
+        xlabel="training time (s, CPU)", ylabel="held-out PSNR (dB)", title="fit-nerf on the bundled capture"
+    )
     axes[1].set(xlabel="training time (s, CPU)", ylabel="median |depth error| (% of scene)", yscale="log")
     for axis in axes:
         axis.legend()
@@ -111,9 +126,17 @@ def views_picture(trainer, renderings, truth, path):
     for index, rendering in list(zip(trainer.held_out_views, renderings))[:3]:
         valid = truth[index][truth[index] > 0]
         low, high = np.percentile(valid, 1), np.percentile(valid, 99)
-        rows.append(np.concatenate([
-            (trainer.views.images[index] * 255).astype(np.uint8), (np.clip(rendering.rgb, 0, 1) * 255).astype(np.uint8),
-            colourise_depth(truth[index], low, high), colourise_depth(rendering.depth, low, high)], axis=1))
+        rows.append(
+            np.concatenate(
+                [
+                    (trainer.views.images[index] * 255).astype(np.uint8),
+                    (np.clip(rendering.rgb, 0, 1) * 255).astype(np.uint8),
+                    colourise_depth(truth[index], low, high),
+                    colourise_depth(rendering.depth, low, high),
+                ],
+                axis=1,
+            )
+        )
     picture = np.concatenate(rows, axis=0)
     if picture.shape[1] > 1400:
         scale = 1400 / picture.shape[1]
@@ -122,8 +145,12 @@ def views_picture(trainer, renderings, truth, path):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--capture", default=None, help="capture folder (default: render one to a temporary folder)")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--capture", default=None, help="capture folder (default: render one to a temporary folder)"
+    )
     parser.add_argument("--quick", action="store_true", help="fast preset only, 300 steps")
     parser.add_argument("--presets", default="fast,quality")
     parser.add_argument("--evaluations", type=int, default=6, help="held-out evaluations per preset")
@@ -145,11 +172,17 @@ def main():
         results.append(summary)
         views_picture(trainer, renderings, truth, Path(args.views_picture))
     previous = json.loads(Path(args.out).read_text()) if Path(args.out).exists() and not args.quick else {}
-    if previous.get("quick") is False:  # keep the presets this run did not fit (one preset per run fits an idle hour)
+    if (
+        previous.get("quick") is False
+    ):  # keep the presets this run did not fit (one preset per run fits an idle hour)
         results = [r for r in previous["results"] if r["preset"] not in presets] + results
     results.sort(key=lambda r: list(PRESETS).index(r["preset"]))
-    document = {"machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
-                "capture": str(capture), "quick": args.quick, "results": results}
+    document = {
+        "machine": f"{platform.processor() or platform.machine()}, torch {torch.__version__}",
+        "capture": str(capture),
+        "quick": args.quick,
+        "results": results,
+    }
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(document, indent=1))
     plot_curves(results, Path(args.plot))

@@ -41,7 +41,9 @@ def ball_inputs(capture: Path, folder: Path, frames: int = 16, dt: float = 1 / 3
     ball = next(o for o in scene["objects"] if o["name"] == "ball")
     lower, upper = np.array(ball["bounds"], np.float64)
     origin = 0.5 * (lower + upper)
-    volume = Volume(lower - [0.01, 0.01, 0.0], upper + 0.01, origin, lower - [0.3, 0.3, 0.1], upper + [0.3, 0.3, 0.0])
+    volume = Volume(
+        lower - [0.01, 0.01, 0.0], upper + 0.01, origin, lower - [0.3, 0.3, 0.1], upper + [0.3, 0.3, 0.0]
+    )
     write_volume(folder / "volume.npz", volume)
     mesh = trimesh.load(capture / "ground_truth" / "objects" / "ball.obj", force="mesh")
     times = np.arange(frames) * dt
@@ -50,14 +52,22 @@ def ball_inputs(capture: Path, folder: Path, frames: int = 16, dt: float = 1 / 3
     positions = np.stack([origin[0] + 0.1 * times, origin[1] + 0.75 * times, z], -1)
     quaternions = quat_from_axis_angle(np.tile([1.0, 0, 0], (frames, 1)), -0.75 / radius * times)
     trajectory = Trajectory(
-        mesh_names=np.array(["ball"], dtype=object), scales=np.ones(1, np.float32),
-        positions=positions[:, None].astype(np.float32), quaternions=quaternions[:, None].astype(np.float32),
-        static=np.array([False]), mass=np.array([1e-3], np.float32), friction=np.array([0.5], np.float32),
+        mesh_names=np.array(["ball"], dtype=object),
+        scales=np.ones(1, np.float32),
+        positions=positions[:, None].astype(np.float32),
+        quaternions=quaternions[:, None].astype(np.float32),
+        static=np.array([False]),
+        mass=np.array([1e-3], np.float32),
+        friction=np.array([0.5], np.float32),
         restitution=np.array([0.5], np.float32),
     )
     meshes = {"ball": Mesh(np.asarray(mesh.vertices - origin, np.float32), np.asarray(mesh.faces, np.int32))}
-    write_trajectories(folder / "rollout.h5", TrajectoryFile(dt, np.array([0, 0, -10.0]), meshes, {"00000": trajectory}))
-    return volume, rerender.object_motion(TrajectoryFile(dt, np.array([0, 0, -10.0]), meshes, {"00000": trajectory}), volume)
+    write_trajectories(
+        folder / "rollout.h5", TrajectoryFile(dt, np.array([0, 0, -10.0]), meshes, {"00000": trajectory})
+    )
+    return volume, rerender.object_motion(
+        TrajectoryFile(dt, np.array([0, 0, -10.0]), meshes, {"00000": trajectory}), volume
+    )
 
 
 def median_seconds(function, repeats):
@@ -96,7 +106,9 @@ def main():
         fractions.append(float(renderer.render(camera, step).bent.mean()))
         warp = rerender.make_warp(motion, step, volume, args.mode)
         box = rerender.bending_box(model, motion, step, volume)
-        all_bent.append(median_seconds(lambda: rerender.render_rays(model, origins, directions, warp, box), args.repeats))
+        all_bent.append(
+            median_seconds(lambda: rerender.render_rays(model, origins, directions, warp, box), args.repeats)
+        )
     result = {
         "image": f"{cameras.width}x{cameras.height}",
         "mode": args.mode,

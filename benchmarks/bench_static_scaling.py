@@ -83,7 +83,9 @@ def duck_mesh():
 def drop_scene(name, ground, duck, frames=2):
     """A Scene: the ground (static, object 0) and the duck at rest, its lowest point 4 cm above
     the ground's mean height (the bumps are ±2 cm)."""
-    geometry = scene_geometry([ground, duck], [1.0, DUCK_SCALE], [True, False], [[0.0, 0.5, 0.5], [1.0, 0.5, 0.5]])
+    geometry = scene_geometry(
+        [ground, duck], [1.0, DUCK_SCALE], [True, False], [[0.0, 0.5, 0.5], [1.0, 0.5, 0.5]]
+    )
     positions = np.zeros((frames, 2, 3))
     quaternions = np.tile([1.0, 0.0, 0.0, 0.0], (frames, 2, 1))
     quaternions[:, 1] = DUCK_UPRIGHT
@@ -141,13 +143,17 @@ def timed_rollouts(simulator, scenes, steps, repeats, with_functional_path=True)
     histories = {scene.name: ([*scene.positions[:2]], [*scene.quaternions[:2]]) for scene in scenes}
     edges = []
     for step in range(steps):
-        graph = build_scene_graph(scenes[0].geometry, *history_of(*histories[scenes[0].name]), simulator.config.graph)
+        graph = build_scene_graph(
+            scenes[0].geometry, *history_of(*histories[scenes[0].name]), simulator.config.graph
+        )
         edges.append(int(graph.graph.edge_sets["face_face"].num_edges))
         for repeat in range(repeats):
             turn = (step * repeats + repeat) % len(scenes)
             for scene in scenes[turn:] + scenes[:turn]:
                 history = history_of(*histories[scene.name])
-                for phase, function in phase_functions(simulator, scene, *history, with_functional_path).items():
+                for phase, function in phase_functions(
+                    simulator, scene, *history, with_functional_path
+                ).items():
                     timings[scene.name].setdefault(phase, []).append((step, 1e3 * seconds(function)))
         for scene in scenes:
             positions, quaternions = histories[scene.name]
@@ -160,7 +166,9 @@ def timed_rollouts(simulator, scenes, steps, repeats, with_functional_path=True)
 
 def history_of(positions, quaternions):
     """(3, O, 3), (3, O, 4): frames t−1, t and t again (static objects do not move)."""
-    return np.stack([positions[-2], positions[-1], positions[-1]]), np.stack([quaternions[-2], quaternions[-1], quaternions[-1]])
+    return np.stack([positions[-2], positions[-1], positions[-1]]), np.stack(
+        [quaternions[-2], quaternions[-1], quaternions[-1]]
+    )
 
 
 def traced_memory(simulator, scene):
@@ -194,7 +202,9 @@ def compare_rollouts(rollouts, reference):
     for name, (positions, quaternions) in rollouts.items():
         ref_positions, ref_quaternions = rollouts[reference]
         result[name] = {
-            "bit_identical": bool(np.array_equal(positions, ref_positions) and np.array_equal(quaternions, ref_quaternions)),
+            "bit_identical": bool(
+                np.array_equal(positions, ref_positions) and np.array_equal(quaternions, ref_quaternions)
+            ),
             "max_abs_position_difference_m": float(np.abs(positions - ref_positions).max()),
             "max_abs_quaternion_difference": float(np.abs(quaternions - ref_quaternions).max()),
         }
@@ -227,9 +237,14 @@ def summarise(timings, memory, scenes, edges):
         for phase, samples in timings[scene.name].items():
             steps, values = np.array([s for s, _ in samples]), np.array([v for _, v in samples])
             row[phase] = float(np.median(values))
-            row[phase.replace("_ms", "_iqr_ms")] = [float(np.percentile(values, 25)), float(np.percentile(values, 75))]
+            row[phase.replace("_ms", "_iqr_ms")] = [
+                float(np.percentile(values, 25)),
+                float(np.percentile(values, 75)),
+            ]
             for label, mask in (("contact", contact[steps]), ("free", ~contact[steps])):
-                row[phase.replace("_ms", f"_{label}_ms")] = float(np.median(values[mask])) if mask.any() else None
+                row[phase.replace("_ms", f"_{label}_ms")] = (
+                    float(np.median(values[mask])) if mask.any() else None
+                )
         row.update(memory.get(scene.name, {}))
         rows[scene.name] = row
     return rows
@@ -240,13 +255,22 @@ PHASES = ("step_ms", "step_proposed_ms", "graph_ms", "broad_phase_ms", "broad_ph
 
 def print_table(rows, ratios):
     phases = [p for p in PHASES if p in next(iter(rows.values()))]
-    print(f"{'ground':>12} {'faces':>7} " + " ".join(f"{p:>14.14}" for p in phases) + f" {'peak MiB':>9} {'cache MiB':>9}")
+    print(
+        f"{'ground':>12} {'faces':>7} "
+        + " ".join(f"{p:>14.14}" for p in phases)
+        + f" {'peak MiB':>9} {'cache MiB':>9}"
+    )
     for name, row in rows.items():
         cells = " ".join(f"{row[p]:14.2f}" for p in phases)
-        print(f"{name:>12} {row['faces_ground']:7d} {cells} {row['peak_traced_mib']:9.2f} {row['cache_mib']:9.2f}")
+        print(
+            f"{name:>12} {row['faces_ground']:7d} {cells} {row['peak_traced_mib']:9.2f} {row['cache_mib']:9.2f}"
+        )
     print("columns: " + ", ".join(phases) + " (ms, medians over all steps)")
     for label in ("contact", "free"):
-        cells = ", ".join(f"{p.replace('_ms', '')} {rows['100k'].get(p.replace('_ms', f'_{label}_ms')) or float('nan'):.2f} vs {rows['1k'].get(p.replace('_ms', f'_{label}_ms')) or float('nan'):.2f}" for p in phases)
+        cells = ", ".join(
+            f"{p.replace('_ms', '')} {rows['100k'].get(p.replace('_ms', f'_{label}_ms')) or float('nan'):.2f} vs {rows['1k'].get(p.replace('_ms', f'_{label}_ms')) or float('nan'):.2f}"
+            for p in phases
+        )
         print(f"steps with {label:>7}: 100k vs 1k ms: {cells}")
     print("ratio 100k/1k: " + ", ".join(f"{p} {v:.2f}" for p, v in ratios.items()))
 
@@ -258,7 +282,11 @@ def main():
     parser.add_argument("--repeats", type=int, default=3, help="timings of each phase per step and ground")
     parser.add_argument("--baseline", type=Path, help="a json of an earlier run to keep as 'before'")
     parser.add_argument("--label", default="after")
-    parser.add_argument("--no-functional-path", action="store_true", help="do not time face_pairs_within_radius on all triangles")
+    parser.add_argument(
+        "--no-functional-path",
+        action="store_true",
+        help="do not time face_pairs_within_radius on all triangles",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     simulator = load_checkpoint(bundled_model_path())
@@ -267,11 +295,14 @@ def main():
         GROUNDS[name] = (bumpy_ground(cells), duck)
     GROUNDS["100k cropped"] = (cropped(*bumpy_ground(CELLS_PER_SIDE["100k"]), CROP_RADIUS), duck)
     scenes = [drop_scene(name, *GROUNDS[name]) for name in GROUNDS]
-    timings, rollouts, edges = timed_rollouts(simulator, scenes, args.steps, args.repeats, not args.no_functional_path)
+    timings, rollouts, edges = timed_rollouts(
+        simulator, scenes, args.steps, args.repeats, not args.no_functional_path
+    )
     memory = {scene.name: traced_memory(simulator, scene) for scene in scenes}
     rows = summarise(timings, memory, scenes, edges)
     ratios = {
-        p.replace("_ms", f"{suffix}_ms"): rows["100k"][p.replace("_ms", f"{suffix}_ms")] / rows["1k"][p.replace("_ms", f"{suffix}_ms")]
+        p.replace("_ms", f"{suffix}_ms"): rows["100k"][p.replace("_ms", f"{suffix}_ms")]
+        / rows["1k"][p.replace("_ms", f"{suffix}_ms")]
         for p in timings["1k"]
         for suffix in ("", "_contact", "_free")
         if rows["1k"][p.replace("_ms", f"{suffix}_ms")]
@@ -279,17 +310,26 @@ def main():
     rollouts["100k via rollout()"] = rollout(simulator, drop_scene("100k", *GROUNDS["100k"]), args.steps)
     proposed_equals_step = same_step_results(simulator, scenes, rollouts)
     result = {
-        "machine": {"python": platform.python_version(), "numpy": np.__version__, "torch": torch.__version__,
-                    "cpu_count": os.cpu_count(), "torch_threads": 1, "load_average_1min": os.getloadavg()[0]},
+        "machine": {
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "torch": torch.__version__,
+            "cpu_count": os.cpu_count(),
+            "torch_threads": 1,
+            "load_average_1min": os.getloadavg()[0],
+        },
         "model": str(bundled_model_path().name),
         "steps": args.steps,
         "repeats_per_step": args.repeats,
         "face_face_edges_per_step": edges,
         "cell_size_m": CELL_SIZE,
         "memory_method": "tracemalloc (numpy and Python objects; torch tensors are not traced)",
-        args.label: {"per_ground": rows, "ratio_100k_over_1k": ratios,
-                     "rollouts_equal_to_1k": compare_rollouts(rollouts, "1k"),
-                     "step_proposed_equals_step": proposed_equals_step},
+        args.label: {
+            "per_ground": rows,
+            "ratio_100k_over_1k": ratios,
+            "rollouts_equal_to_1k": compare_rollouts(rollouts, "1k"),
+            "step_proposed_equals_step": proposed_equals_step,
+        },
     }
     if args.baseline is not None:
         previous = json.loads(args.baseline.read_text())
@@ -298,7 +338,9 @@ def main():
     print(f"step_proposed gives the same poses as LearnedSimulator.step: {proposed_equals_step}")
     print(f"face-face edges per step (1k ground): {edges}")
     for name, same in result[args.label]["rollouts_equal_to_1k"].items():
-        print(f"rollout on {name:>20}: bit-identical to 1k: {same['bit_identical']}, max |Δposition| {same['max_abs_position_difference_m']:.3g} m")
+        print(
+            f"rollout on {name:>20}: bit-identical to 1k: {same['bit_identical']}, max |Δposition| {same['max_abs_position_difference_m']:.3g} m"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     print(f"wrote {args.out}")

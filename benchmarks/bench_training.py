@@ -48,9 +48,18 @@ def measure(path, setting, args) -> float:
 def measure_here(path, setting, args) -> float:
     state, static_receivers, workers, precision, threads, processes = setting
     torch.set_num_threads(threads)
-    simulator = simulator_config_for("fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers)
-    config = TrainingConfig(steps=args.warmup + args.steps, batch_size=args.batch_size, loss="mse", precision=precision,
-                            normalizer_accumulation_steps=args.warmup, checkpoint_every=10**9, seed=args.seed)
+    simulator = simulator_config_for(
+        "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
+    )
+    config = TrainingConfig(
+        steps=args.warmup + args.steps,
+        batch_size=args.batch_size,
+        loss="mse",
+        precision=precision,
+        normalizer_accumulation_steps=args.warmup,
+        checkpoint_every=10**9,
+        seed=args.seed,
+    )
     trainer = make_trainer(path, simulator, config, workers=workers)
     trainer.run()
     seconds = trainer.history[-1]["seconds"] - trainer.history[args.warmup - 1]["seconds"]
@@ -60,9 +69,28 @@ def measure_here(path, setting, args) -> float:
 def measure_distributed(path, setting, args) -> float:
     """The setting under torchrun; rank 0 prints its rate on the last line."""
     torchrun = Path(sys.executable).with_name("torchrun")
-    command = [str(torchrun), "--standalone", "--nproc_per_node", str(setting[5]), __file__, path, "--as-rank",
-               json.dumps(setting), *(f"--{k.replace('_', '-')}={v}" for k, v in vars(args).items() if k in ("steps", "warmup", "batch_size", "size", "seed"))]
-    result = subprocess.run(command, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": str(setting[4])}, check=True)
+    command = [
+        str(torchrun),
+        "--standalone",
+        "--nproc_per_node",
+        str(setting[5]),
+        __file__,
+        path,
+        "--as-rank",
+        json.dumps(setting),
+        *(
+            f"--{k.replace('_', '-')}={v}"
+            for k, v in vars(args).items()
+            if k in ("steps", "warmup", "batch_size", "size", "seed")
+        ),
+    ]
+    result = subprocess.run(
+        command,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": str(setting[4])},
+        check=True,
+    )
     return float(result.stdout.strip().splitlines()[-1])
 
 
@@ -76,7 +104,9 @@ def main() -> None:
     parser.add_argument("--size", default="small")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("-o", "--output", default=None)
-    parser.add_argument("--as-rank", default=None, help=argparse.SUPPRESS)  # one process of a torchrun setting
+    parser.add_argument(
+        "--as-rank", default=None, help=argparse.SUPPRESS
+    )  # one process of a torchrun setting
     args = parser.parse_args()
     if args.as_rank is not None:
         rate = measure_here(args.data, json.loads(args.as_rank), args)
@@ -89,14 +119,22 @@ def main() -> None:
             rates[name].append(measure(args.data, setting, args))
             print(f"{name}: {rates[name][-1]:.1f} samples/s", flush=True)
     baseline = statistics.median(rates[next(iter(SETTINGS))])
-    rows = {name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline} for name, r in rates.items()}
+    rows = {
+        name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline}
+        for name, r in rates.items()
+    }
     print(f"\n| setting | samples/s | × serial |\n|---|---|---|")
     for name, row in rows.items():
         print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |")
     if args.output:
         fields = ("state", "static_receivers", "workers", "precision", "threads", "processes")
-        result = {"data": args.data, "cpus": os.cpu_count(), "settings": {k: dict(zip(fields, v)) for k, v in SETTINGS.items()},
-                  "args": vars(args), "results": rows}
+        result = {
+            "data": args.data,
+            "cpus": os.cpu_count(),
+            "settings": {k: dict(zip(fields, v)) for k, v in SETTINGS.items()},
+            "args": vars(args),
+            "results": rows,
+        }
         with atomic_path(args.output) as tmp, open(tmp, "w") as f:
             json.dump(result, f, indent=1)
 

@@ -37,8 +37,16 @@ def main():
     if args.json:
         args.json.write_text(json.dumps(report, indent=1))
     clearance = report["min_clearance_m"]
-    rest = f"at rest after {report['rest_time_s']:.2f} s" if report["at_rest"] else f"still moving ({report['final_speed_m_s']:.3f} m/s)"
-    lowest = "nothing under it" if clearance is None else f"lowest point {1000 * clearance:+.1f} mm from the surface under it at worst"
+    rest = (
+        f"at rest after {report['rest_time_s']:.2f} s"
+        if report["at_rest"]
+        else f"still moving ({report['final_speed_m_s']:.3f} m/s)"
+    )
+    lowest = (
+        "nothing under it"
+        if clearance is None
+        else f"lowest point {1000 * clearance:+.1f} mm from the surface under it at worst"
+    )
     print(f"drop: {lowest}; {rest} ({report['frames']} frames, dt {report['dt']:.4f} s)")
     sys.exit(0 if report["at_rest"] and clearance is not None and clearance > -args.max_penetration else 1)
 

@@ -38,9 +38,11 @@ def comparison_lines(label, report):
         for horizon, c in horizons.items():
             low, high = c["translation_rmse_ratio_95"]
             rlow, rhigh = c["rotation_error_difference_deg_95"]
-            yield (f"{label} vs {NAMES.get(baseline, baseline)}, {horizon}: translation RMSE ×{c['translation_rmse_ratio']:.3f} "
-                   f"[{low:.3f}, {high:.3f}], rotation {c['rotation_error_difference_deg']:+.1f}° [{rlow:+.1f}, {rhigh:+.1f}], "
-                   f"closer for {100 * c['objects_closer']:.0f} % of {c['objects']} objects ({c['trajectories']} trajectories)")
+            yield (
+                f"{label} vs {NAMES.get(baseline, baseline)}, {horizon}: translation RMSE ×{c['translation_rmse_ratio']:.3f} "
+                f"[{low:.3f}, {high:.3f}], rotation {c['rotation_error_difference_deg']:+.1f}° [{rlow:+.1f}, {rhigh:+.1f}], "
+                f"closer for {100 * c['objects_closer']:.0f} % of {c['objects']} objects ({c['trajectories']} trajectories)"
+            )
 
 
 HORIZONS = ("0.1_seconds", "0.2_seconds", "0.33_seconds", "0.5_seconds", "1_seconds", "50_steps", "2_seconds")
@@ -52,15 +54,28 @@ def markdown_table(reports):
     first = reports[0][1]
     horizons = [h for h in HORIZONS if h in first["metrics"]["model"]]
     rows = [(label, report["metrics"]["model"]) for label, report in reports]
-    rows += [(f"{label}, with guards", report["metrics"]["model_with_guards"])
-             for label, report in reports if "model_with_guards" in report["metrics"]]
+    rows += [
+        (f"{label}, with guards", report["metrics"]["model_with_guards"])
+        for label, report in reports
+        if "model_with_guards" in report["metrics"]
+    ]
     rows += [(name, first["metrics"][key]) for key, name in NAMES.items() if key in first["metrics"]]
-    steps = {h: round(float(h.split("_")[0]) / first["dt"]) if h.endswith("seconds") else int(h.split("_")[0]) for h in horizons}
-    names = [f"{h.replace('_seconds', ' s').replace('_steps', ' steps')} ({steps[h]} steps)" if h.endswith("seconds")
-             else h.replace("_", " ") for h in horizons]
+    steps = {
+        h: round(float(h.split("_")[0]) / first["dt"]) if h.endswith("seconds") else int(h.split("_")[0])
+        for h in horizons
+    }
+    names = [
+        f"{h.replace('_seconds', ' s').replace('_steps', ' steps')} ({steps[h]} steps)"
+        if h.endswith("seconds")
+        else h.replace("_", " ")
+        for h in horizons
+    ]
     lines = ["| m / deg | " + " | ".join(names) + " |", "|---|" + "---:|" * len(horizons)]
     for label, metrics in rows:
-        cells = [f"{metrics[h]['all']['translation_rmse_m']:.3f} / {metrics[h]['all']['rotation_error_deg']:.1f}" for h in horizons]
+        cells = [
+            f"{metrics[h]['all']['translation_rmse_m']:.3f} / {metrics[h]['all']['rotation_error_deg']:.1f}"
+            for h in horizons
+        ]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -75,24 +90,36 @@ def plot(reports, path):
     first = reports[0][1]
     dt = first["dt"]
     lines = [(label, report["curves"]["model"], "-") for label, report in reports]
-    lines += [(f"{label}, with guards", report["curves"]["model_with_guards"], "--")
-              for label, report in reports if "model_with_guards" in report["curves"]]
+    lines += [
+        (f"{label}, with guards", report["curves"]["model_with_guards"], "--")
+        for label, report in reports
+        if "model_with_guards" in report["curves"]
+    ]
     lines += [(name, first["curves"][key], ":") for key, name in BASELINES.items() if key in first["curves"]]
     lines += [(name, first["curves"][key], "-.") for key, name in CEILINGS.items() if key in first["curves"]]
-    for axis, key, ylabel in ((axes[0], "translation_rmse_m", "translation RMSE (m)"), (axes[1], "rotation_error_deg", "rotation error (deg)")):
+    for axis, key, ylabel in (
+        (axes[0], "translation_rmse_m", "translation RMSE (m)"),
+        (axes[1], "rotation_error_deg", "rotation error (deg)"),
+    ):
         for label, curve, style in lines:
             axis.plot([k * dt for k in curve["step"]], curve[key], style, label=label)
         axis.axvline(50 * dt, color="grey", lw=0.8)
         axis.set(xlabel="rollout time (s); grey: 50 steps", ylabel=ylabel)
     axes[0].legend(fontsize=8)
-    figure.suptitle(f"{first['trajectories']} held-out trajectories of {os.path.basename(first['data'])}", fontsize=9)
+    figure.suptitle(
+        f"{first['trajectories']} held-out trajectories of {os.path.basename(first['data'])}", fontsize=9
+    )
     figure.tight_layout()
     figure.savefig(path, dpi=90)
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("reports", nargs="+", metavar="FILE[=LABEL]", help="evaluate json files, each with an optional label")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "reports", nargs="+", metavar="FILE[=LABEL]", help="evaluate json files, each with an optional label"
+    )
     parser.add_argument("--plot", help="PNG to write")
     args = parser.parse_args()
     reports = [read(spec) for spec in args.reports]

@@ -43,8 +43,10 @@ def rollout_errors(simulator, scenes, horizons=HORIZONS) -> dict:
                 translation.append(t)
                 rotation.append(r)
         if translation:
-            out[f"{steps}_steps"] = {"translation_rmse_m": float(np.sqrt(np.mean(np.concatenate(translation) ** 2))),
-                                     "rotation_error_deg": float(np.mean(np.concatenate(rotation)))}
+            out[f"{steps}_steps"] = {
+                "translation_rmse_m": float(np.sqrt(np.mean(np.concatenate(translation) ** 2))),
+                "rotation_error_deg": float(np.mean(np.concatenate(rotation))),
+            }
     return out
 
 
@@ -65,16 +67,37 @@ def main() -> None:
     torch.set_num_threads(1)
     data = read_trajectories(args.data)
     data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
-    config = simulator_config_for("fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False)
+    config = simulator_config_for(
+        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False
+    )
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     started = time.perf_counter()
-    trainer = overfit(config, scenes, args.steps, args.batch_size, tuple(args.learning_rate), args.loss, args.precision, args.seed)
+    trainer = overfit(
+        config,
+        scenes,
+        args.steps,
+        args.batch_size,
+        tuple(args.learning_rate),
+        args.loss,
+        args.precision,
+        args.seed,
+    )
     seconds = time.perf_counter() - started
     simulator = trainer.simulator.eval()
     fvu = fraction_unexplained(simulator, one_step_examples(simulator, scenes))
-    result = {"args": vars(args), "train_seconds": seconds, "fraction_unexplained": fvu,
-              "rollout": rollout_errors(simulator, scenes), "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]]))}
-    print(json.dumps({k: result[k] for k in ("fraction_unexplained", "rollout", "final_loss", "train_seconds")}, indent=1))
+    result = {
+        "args": vars(args),
+        "train_seconds": seconds,
+        "fraction_unexplained": fvu,
+        "rollout": rollout_errors(simulator, scenes),
+        "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]])),
+    }
+    print(
+        json.dumps(
+            {k: result[k] for k in ("fraction_unexplained", "rollout", "final_loss", "train_seconds")},
+            indent=1,
+        )
+    )
     if args.output:
         with atomic_path(args.output) as tmp, open(tmp, "w") as f:
             json.dump(result, f, indent=1)

@@ -44,10 +44,14 @@ def measure(model, folder, paper):
         return with_properties(cases.scene_file(folder / name, bodies, statics), paper)
 
     def roll(path, steps, **options):
-        return rollout_file(model, path, None, steps, free_flight=True, keep_out=True, **options).trajectories["0"]
+        return rollout_file(
+            model, path, None, steps, free_flight=True, keep_out=True, **options
+        ).trajectories["0"]
 
     def deepest(trajectory, meshes, every=1):
-        return float(-min(cases.lowest_z(trajectory, meshes, f) for f in range(0, trajectory.num_frames, every)))
+        return float(
+            -min(cases.lowest_z(trajectory, meshes, f) for f in range(0, trajectory.num_frames, every))
+        )
 
     found = {}
     box = trimesh.creation.box([1, 1, 1])
@@ -61,36 +65,53 @@ def measure(model, folder, paper):
     found["rod_rest_height_error_m"] = float(abs(t.positions[-1, 1, 2] - 0.025))
     plate, small = trimesh.creation.box([3.0, 3.0, 0.02]), trimesh.creation.box([0.5, 0.5, 0.5])
     t = roll(scene("plate.h5", [(small, [0, 0, 2.0], [0, 0, -8.0])], [(plate, [0, 0, 0.99])]), 40)
-    found["plate_deepest_below_top_m"] = 1.0 - (-deepest(t, {"floor": cases.FLOOR, "static0": plate, "body0": small}))
+    found["plate_deepest_below_top_m"] = 1.0 - (
+        -deepest(t, {"floor": cases.FLOOR, "static0": plate, "body0": small})
+    )
     found["plate_end_z_m"] = float(t.positions[-1, 2, 2])
     for size in (0.02, 5.0):
         cube = trimesh.creation.box([size] * 3)
         steps = int(round(1.5 / (cases.DT / np.sqrt(2.1 / size))))
         t = roll(scene("cube.h5", [(cube, [0, 0, 1.5 * size], [0, 0, 0])]), steps, sim_scale="auto")
-        found[f"cube_{size:g}m_deepest_fraction_of_size"] = deepest(t, {"floor": cases.FLOOR, "body0": cube}) / size
-        found[f"cube_{size:g}m_rest_height_error_fraction_of_size"] = float(abs(t.positions[-1, 1, 2] - size / 2) / size)
-    bodies = [(box, [-2, 0, 2], [3, 0, 0]), (trimesh.creation.icosphere(2, 0.6), [2, 0, 1.5], [-3, 0.5, 0]),
-              (trimesh.creation.cylinder(0.4, 1.2), [0, 2, 2.5], [0, -2, 0])]
+        found[f"cube_{size:g}m_deepest_fraction_of_size"] = (
+            deepest(t, {"floor": cases.FLOOR, "body0": cube}) / size
+        )
+        found[f"cube_{size:g}m_rest_height_error_fraction_of_size"] = float(
+            abs(t.positions[-1, 1, 2] - size / 2) / size
+        )
+    bodies = [
+        (box, [-2, 0, 2], [3, 0, 0]),
+        (trimesh.creation.icosphere(2, 0.6), [2, 0, 1.5], [-3, 0.5, 0]),
+        (trimesh.creation.cylinder(0.4, 1.2), [0, 2, 2.5], [0, -2, 0]),
+    ]
     t = roll(scene("long.h5", bodies), 1000, sleep=True)
     found["long_finite"] = bool(np.isfinite(t.positions).all() and np.isfinite(t.quaternions).all())
-    found["long_deepest_into_floor_m"] = deepest(t, {"floor": cases.FLOOR, **{f"body{k}": m for k, (m, _, _) in enumerate(bodies)}}, 10)
+    found["long_deepest_into_floor_m"] = deepest(
+        t, {"floor": cases.FLOOR, **{f"body{k}": m for k, (m, _, _) in enumerate(bodies)}}, 10
+    )
     found["long_max_abs_position_m"] = float(np.abs(t.positions[:, 1:]).max())
     return found
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--model", default=None, help="model file (default: the bundled FIGNet*)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
-    logging.basicConfig(level=logging.ERROR)  # the paper's table is outside the model's: rollout warns on every scene
+    logging.basicConfig(
+        level=logging.ERROR
+    )  # the paper's table is outside the model's: rollout warns on every scene
     model = load_model(args.model)
     result = {"model": args.model or "bundled fignet-star-movi-b"}
     with tempfile.TemporaryDirectory() as folder:
         for name, paper in (("movi_b_materials", False), ("paper_fignet_star_table", True)):
             result[name] = measure(model, Path(folder), paper)
     for key in result["movi_b_materials"]:
-        print(f"{key:48s} {result['movi_b_materials'][key]!s:>22} {result['paper_fignet_star_table'][key]!s:>22}")
+        print(
+            f"{key:48s} {result['movi_b_materials'][key]!s:>22} {result['paper_fignet_star_table'][key]!s:>22}"
+        )
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
 
 

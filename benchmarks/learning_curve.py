@@ -34,7 +34,9 @@ def training_history(path):
     payload = read_checkpoint_payload(path)
     state = payload.get("training_state") or {}
     if not state.get("history"):
-        raise SystemExit(f"error: {path} has no training history (an exported model?); pass the file `train` wrote")
+        raise SystemExit(
+            f"error: {path} has no training history (an exported model?); pass the file `train` wrote"
+        )
     return json.loads(state["history"]), int(state["step"])
 
 
@@ -43,9 +45,19 @@ def join_stages(finals):
     run, stages, steps, seconds = [], [], 0, 0.0
     for index, path in enumerate(finals):
         history, step = training_history(path)
-        run += [{**h, "step": h["step"] + steps, "seconds": h["seconds"] + seconds, "stage": index} for h in history]
-        stages.append({"model": path, "first_step": steps + 1, "last_step": steps + step,
-                       "start_seconds": seconds, "seconds": history[-1]["seconds"]})
+        run += [
+            {**h, "step": h["step"] + steps, "seconds": h["seconds"] + seconds, "stage": index}
+            for h in history
+        ]
+        stages.append(
+            {
+                "model": path,
+                "first_step": steps + 1,
+                "last_step": steps + step,
+                "start_seconds": seconds,
+                "seconds": history[-1]["seconds"],
+            }
+        )
         steps, seconds = steps + step, seconds + history[-1]["seconds"]
     return run, stages
 
@@ -63,9 +75,15 @@ def held_out_points(stages, snapshot_globs, test_path, max_trajectories, known=N
                 points.append(known[(index, step)])
                 continue
             metrics = evaluate_file(load_checkpoint(path), test_path, max_trajectories)["metrics"]["model"]
-            points.append({"stage": index, "stage_step": step, "step": stage["first_step"] - 1 + step,
-                           "seconds": stage["start_seconds"] + history[-1]["seconds"],
-                           **{h: m["all"] for h, m in metrics.items()}})
+            points.append(
+                {
+                    "stage": index,
+                    "stage_step": step,
+                    "step": stage["first_step"] - 1 + step,
+                    "seconds": stage["start_seconds"] + history[-1]["seconds"],
+                    **{h: m["all"] for h, m in metrics.items()},
+                }
+            )
             print(f"stage {index} step {step}: {points[-1]}", flush=True)
     return sorted(points, key=lambda p: p["step"])
 
@@ -81,15 +99,23 @@ def plot(history, stages, points, path, title):
         part = [h for h in history if h["stage"] == index]
         window = min(50, len(part))
         smooth = torch.tensor([h["loss"] for h in part]).unfold(0, window, 1).mean(1).tolist()
-        axes[0].plot([h["step"] for h in part][window - 1:], smooth, color="tab:blue")
+        axes[0].plot([h["step"] for h in part][window - 1 :], smooth, color="tab:blue")
     axes[0].set(xlabel="step", ylabel="training loss (mean of 50)", yscale="log", title=title)
     for axis, key, label in ((axes[1], "step", "step"), (axes[2], "seconds", "training wall time (s)")):
         shown = [p for p in points if p.get("50_steps")]
         xs = [p[key] for p in shown]
-        axis.plot(xs, [p["50_steps"]["translation_rmse_m"] for p in shown], "o-", label="translation RMSE (m)")
+        axis.plot(
+            xs, [p["50_steps"]["translation_rmse_m"] for p in shown], "o-", label="translation RMSE (m)"
+        )
         axis.set(xlabel=label, ylabel="held-out error after 50 steps")
         twin = axis.twinx()
-        twin.plot(xs, [p["50_steps"]["rotation_error_deg"] for p in shown], "s--", color="tab:red", label="rotation (deg)")
+        twin.plot(
+            xs,
+            [p["50_steps"]["rotation_error_deg"] for p in shown],
+            "s--",
+            color="tab:red",
+            label="rotation (deg)",
+        )
         twin.set_ylabel("rotation error (deg)", color="tab:red")
         axis.legend(loc="upper right", fontsize=8)
     for stage in stages[1:]:  # where each later stage began
@@ -101,9 +127,17 @@ def plot(history, stages, points, path, title):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--stage", nargs="+", action="append", required=True, metavar=("MODEL", "SNAPSHOTS"),
-                        help="a stage's final model file, then optionally a glob of its snapshots; repeat in order")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--stage",
+        nargs="+",
+        action="append",
+        required=True,
+        metavar=("MODEL", "SNAPSHOTS"),
+        help="a stage's final model file, then optionally a glob of its snapshots; repeat in order",
+    )
     parser.add_argument("--test", required=True)
     parser.add_argument("-n", type=int, default=10)
     parser.add_argument("--out", required=True)
@@ -123,11 +157,21 @@ def main():
                 point.setdefault("stage", 0)
                 point.setdefault("stage_step", point["step"])
                 known[(point["stage"], point["stage_step"])] = point
-    points = held_out_points(stages, [stage[1] if len(stage) > 1 else None for stage in args.stage],
-                             args.test, args.n, known)
+    points = held_out_points(
+        stages, [stage[1] if len(stage) > 1 else None for stage in args.stage], args.test, args.n, known
+    )
     with atomic_path(args.out) as tmp, open(tmp, "w") as f:
-        json.dump({"test": args.test, "trajectories": args.n, "stages": stages, "held_out": points,
-                   "loss": history[::10]}, f, indent=1)
+        json.dump(
+            {
+                "test": args.test,
+                "trajectories": args.n,
+                "stages": stages,
+                "held_out": points,
+                "loss": history[::10],
+            },
+            f,
+            indent=1,
+        )
     plot(history, stages, points, args.plot, args.title)
     print(args.out, args.plot)
 

@@ -26,7 +26,9 @@ SETTLE_WINDOW = 50
 def lowest_dynamic_z(scene, positions, quaternions):
     """(T,) lowest z of any dynamic vertex per frame."""
     dynamic = scene.geometry.dynamic_vertices
-    return np.array([scene.geometry.world_vertices(p, q)[dynamic, 2].min() for p, q in zip(positions, quaternions)])
+    return np.array(
+        [scene.geometry.world_vertices(p, q)[dynamic, 2].min() for p, q in zip(positions, quaternions)]
+    )
 
 
 def one_trajectory(simulator, scene, steps, **options):
@@ -49,13 +51,17 @@ def one_trajectory(simulator, scene, steps, **options):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--model", required=True)
     parser.add_argument("--data", required=True)
     parser.add_argument("-n", type=int, default=10)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--free-flight", action="store_true", help="objects that touch nothing fly exactly")
-    parser.add_argument("--keep-out", action="store_true", help="objects are moved back out of static meshes they pass into")
+    parser.add_argument(
+        "--keep-out", action="store_true", help="objects are moved back out of static meshes they pass into"
+    )
     parser.add_argument("--sleep", action="store_true", help="objects that have come to rest sleep")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -77,7 +83,20 @@ def main():
     }
     print(json.dumps(summary))
     with atomic_path(args.out) as tmp, open(tmp, "w") as f:
-        json.dump({"model": args.model, "data": args.data, "steps": args.steps, "free_flight": args.free_flight, "keep_out": args.keep_out, "sleep": args.sleep, "summary": summary, "trajectories": rows}, f, indent=1)
+        json.dump(
+            {
+                "model": args.model,
+                "data": args.data,
+                "steps": args.steps,
+                "free_flight": args.free_flight,
+                "keep_out": args.keep_out,
+                "sleep": args.sleep,
+                "summary": summary,
+                "trajectories": rows,
+            },
+            f,
+            indent=1,
+        )
 
 
 if __name__ == "__main__":

@@ -44,11 +44,15 @@ def markdown_table(result: dict) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("data", help="a trajectory file written by make-dataset")
     parser.add_argument("-n", "--trajectories", type=int, default=None, help="the first n (default: all)")
     parser.add_argument("--steps", type=int, nargs="*", default=[PAPER_STEPS], help="horizons in steps")
-    parser.add_argument("--seconds", type=float, nargs="*", default=list(SECONDS_HORIZONS), help="horizons in s")
+    parser.add_argument(
+        "--seconds", type=float, nargs="*", default=list(SECONDS_HORIZONS), help="horizons in s"
+    )
     parser.add_argument("--worlds", nargs="+", choices=list(WORLDS), default=list(WORLDS))
     parser.add_argument("-o", "--output", required=True, help="json to write")
     args = parser.parse_args()
@@ -56,15 +60,23 @@ def main() -> None:
     keys = list(data.trajectories)[: args.trajectories]
     shortest = min(data.trajectories[key].num_frames for key in keys)
     horizons = horizon_steps(data.dt, shortest, args.seconds, args.steps)
-    output = {"command": " ".join(["python", *sys.argv]), "version": __version__, "data": args.data,
-              "data_sha256": file_sha256(args.data), "horizons": horizons}
+    output = {
+        "command": " ".join(["python", *sys.argv]),
+        "version": __version__,
+        "data": args.data,
+        "data_sha256": file_sha256(args.data),
+        "horizons": horizons,
+    }
     for world in args.worlds:
         started = time.perf_counter()
         result = evaluate_ceilings(data, horizons, args.trajectories, keep_world=WORLDS[world])
         result["seconds"] = round(time.perf_counter() - started, 1)
         output[f"{world}_world"] = result
-        print(f"\n{world} world: {result['trajectories']} trajectories, {result['objects']} objects, "
-              f"{result['seconds']} s\n\n{markdown_table(result)}", flush=True)
+        print(
+            f"\n{world} world: {result['trajectories']} trajectories, {result['objects']} objects, "
+            f"{result['seconds']} s\n\n{markdown_table(result)}",
+            flush=True,
+        )
     with atomic_path(args.output) as tmp, open(tmp, "w") as f:
         json.dump(output, f, indent=1)
     print(args.output)

@@ -14,7 +14,9 @@ from PIL import Image
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scene", type=Path, help="the main job's output folder (out/scene)")
-    parser.add_argument("--view", type=int, default=5, help="the capture view rerender used (pipeline.mk's VIEW)")
+    parser.add_argument(
+        "--view", type=int, default=5, help="the capture view rerender used (pipeline.mk's VIEW)"
+    )
     parser.add_argument("--frames", type=int, nargs="+", default=[0, 10, 20, 45])
     parser.add_argument("-o", "--output", type=Path, required=True)
     args = parser.parse_args()

@@ -47,7 +47,9 @@ def responses(simulator, scene):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--model", required=True)
     parser.add_argument("--data", required=True)
     parser.add_argument("-n", type=int, default=6)
@@ -57,12 +59,20 @@ def main():
     data = read_trajectories(args.data)
     found = []
     for key in list(data.trajectories)[: args.n]:
-        found.append(responses(simulator, scene_from_trajectory(data, key, simulator.config, {}, EVALUATION_STATIC_REACH)))
+        found.append(
+            responses(
+                simulator, scene_from_trajectory(data, key, simulator.config, {}, EVALUATION_STATIC_REACH)
+            )
+        )
     k = np.concatenate(found)
     summary = {"responses": int(k.size), "k_p10_p50_p90": np.percentile(k, [10, 50, 90]).round(3).tolist()}
     print(json.dumps(summary))
     with open(args.out, "w") as f:
-        json.dump({"model": args.model, "data": args.data, "speed_m_per_frame": SPEED, "summary": summary}, f, indent=1)
+        json.dump(
+            {"model": args.model, "data": args.data, "speed_m_per_frame": SPEED, "summary": summary},
+            f,
+            indent=1,
+        )
 
 
 if __name__ == "__main__":

@@ -71,7 +71,10 @@ def os_error_sentence(error: OSError) -> str:
 
     what = (error.strerror or str(error)).rstrip(".")
     where = f"{error.filename}: " if error.filename else ""
-    advice = {errno.ENOSPC: "; free some disk space and run it again", errno.EACCES: "; check the file's permissions"}
+    advice = {
+        errno.ENOSPC: "; free some disk space and run it again",
+        errno.EACCES: "; check the file's permissions",
+    }
     return f"{where}{what[:1].lower()}{what[1:]}{advice.get(error.errno, '')}"
 
 
@@ -97,9 +100,15 @@ _SUMMARIES = {
 @click.version_option(__version__, prog_name="fignetctl")
 @click.option("-v", "--verbose", count=True, help="More log output (repeatable).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors: no log lines, no progress.")
-@click.option("--progress", "progress_mode", type=click.Choice(["auto", "always", "never"]), default="auto", show_default=True,
-              help="Progress bars on stderr: redrawn on a terminal; elsewhere (logs of batch jobs) 'auto' writes a line "
-                   "every 30 s and at the end, 'always' one per second.")
+@click.option(
+    "--progress",
+    "progress_mode",
+    type=click.Choice(["auto", "always", "never"]),
+    default="auto",
+    show_default=True,
+    help="Progress bars on stderr: redrawn on a terminal; elsewhere (logs of batch jobs) 'auto' writes a line "
+    "every 30 s and at the end, 'always' one per second.",
+)
 def cli(verbose, quiet, progress_mode):
     """fignetctl: photographs to a simulated, re-rendered what-if video.
 

@@ -48,7 +48,9 @@ def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
         "floor": Mesh(floor_vertices, floor_faces),
         "box": Mesh(np.asarray(box.vertices, np.float32), np.asarray(box.faces, np.int32)),
     }
-    return TrajectoryFile(dt=dt, gravity=np.array([0, 0, -10.0]), meshes=meshes, trajectories={"00000": trajectory})
+    return TrajectoryFile(
+        dt=dt, gravity=np.array([0, 0, -10.0]), meshes=meshes, trajectories={"00000": trajectory}
+    )
 
 
 @pytest.fixture

@@ -46,7 +46,11 @@ def test_progress_in_logs_is_plain_lines_and_can_be_silenced(tmp_path):
         outputs[" ".join(flags)] = result.output
     lines = [line for line in outputs["--progress always"].splitlines() if line.startswith("video:")]
     assert lines and lines[-1].startswith("video: 6/6 frame") and "\r" not in outputs["--progress always"]
-    for quiet in ("--progress never", "-q --progress always", ""):  # auto: a line every 30 s, and this is quicker
+    for quiet in (
+        "--progress never",
+        "-q --progress always",
+        "",
+    ):  # auto: a line every 30 s, and this is quicker
         assert "video:" not in outputs[quiet]
 
 
@@ -54,7 +58,9 @@ def test_a_missing_training_file_and_a_bad_seed_are_one_line_errors(tmp_path):
     result = CliRunner().invoke(cli, ["train", str(tmp_path / "none.h5"), "-o", str(tmp_path / "m.pt")])
     assert result.exit_code == 1 and result.output.strip() == f"Error: {tmp_path / 'none.h5'}: no such file"
     for seed in ("-1", str(2**32)):
-        result = CliRunner().invoke(cli, ["make-dataset", "-n", "1", "--seed", seed, "-o", str(tmp_path / "d.h5")])
+        result = CliRunner().invoke(
+            cli, ["make-dataset", "-n", "1", "--seed", seed, "-o", str(tmp_path / "d.h5")]
+        )
         assert result.exit_code == 2 and "--seed" in result.output and "0<=x<=4294967295" in result.output
     assert not list(tmp_path.iterdir())
 
@@ -74,4 +80,5 @@ def test_an_operating_system_error_inside_a_command_is_one_line(tmp_path, monkey
     result = CliRunner().invoke(cli, ["show", str(data), "--video", str(tmp_path / "v.mp4")])
     assert result.exit_code == 1 and "Traceback" not in result.output
     assert result.output.strip().splitlines()[-1] == (
-        f"Error: {tmp_path / 'v.mp4'}: no space left on device; free some disk space and run it again")
+        f"Error: {tmp_path / 'v.mp4'}: no space left on device; free some disk space and run it again"
+    )

@@ -21,9 +21,18 @@ def test_the_main_job_runs_every_stage_and_leaves_its_files(tmp_path):
     scene = tmp_path / "scene"
     bin_dir = Path(sys.executable).parent
     command = [
-        "make", "--no-print-directory", "-f", str(ROOT / "pipeline.mk"), f"SCENE={scene}",
-        f"FIGNETCTL={bin_dir / 'fignetctl'}", f"PYTHON={sys.executable}",
-        "NERF_FLAGS=--steps 200", "EXTRACT_FLAGS=--threshold 15", "FACES=300", "STEPS=6", "EVERY=3",
+        "make",
+        "--no-print-directory",
+        "-f",
+        str(ROOT / "pipeline.mk"),
+        f"SCENE={scene}",
+        f"FIGNETCTL={bin_dir / 'fignetctl'}",
+        f"PYTHON={sys.executable}",
+        "NERF_FLAGS=--steps 200",
+        "EXTRACT_FLAGS=--threshold 15",
+        "FACES=300",
+        "STEPS=6",
+        "EVERY=3",
     ]
     run = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=900)
     assert run.returncode == 0, run.stderr[-3000:]

@@ -11,23 +11,97 @@ from fignetctl.core.scene_building import ACTIVE, PASSIVE
 
 @click.command("build-graph")
 @click.argument("volume_path", metavar="VOLUME", type=click.Path(dir_okay=False))
-@click.option("--object", "object_path", type=click.Path(dir_okay=False), default=None, help="Active mesh.  [default: VOLUME's object_mesh beside it]")
-@click.option("--environment", "environment_path", type=click.Path(dir_okay=False), default=None, help="Passive mesh.  [default: VOLUME's environment_mesh]")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Scene trajectory file (.h5) to write.")
-@click.option("--drop-height", type=float, default=0.1, show_default=True, help="Start this far above the object's rest position (world units).")
-@click.option("--delta-z", type=click.FloatRange(min=0), default=0.01, show_default=True, help="Δz: the history frame is this much higher (fall speed Δz per frame).")
-@click.option("--start", default=None, callback=_floats(3), metavar="X,Y,Z", help="Start position of the object's origin instead of --drop-height.")
-@click.option("--velocity", default=None, callback=_floats(3), metavar="VX,VY,VZ", help="Start velocity (world units / s) instead of Δz per frame.")
-@click.option("--duplicate", is_flag=True, help="Simulate a copy at the start; the original stays in place as a static object.")
-@click.option("--active-mass", type=click.FloatRange(min=0, min_open=True), default=ACTIVE.mass, show_default=True)
+@click.option(
+    "--object",
+    "object_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Active mesh.  [default: VOLUME's object_mesh beside it]",
+)
+@click.option(
+    "--environment",
+    "environment_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Passive mesh.  [default: VOLUME's environment_mesh]",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    required=True,
+    help="Scene trajectory file (.h5) to write.",
+)
+@click.option(
+    "--drop-height",
+    type=float,
+    default=0.1,
+    show_default=True,
+    help="Start this far above the object's rest position (world units).",
+)
+@click.option(
+    "--delta-z",
+    type=click.FloatRange(min=0),
+    default=0.01,
+    show_default=True,
+    help="Δz: the history frame is this much higher (fall speed Δz per frame).",
+)
+@click.option(
+    "--start",
+    default=None,
+    callback=_floats(3),
+    metavar="X,Y,Z",
+    help="Start position of the object's origin instead of --drop-height.",
+)
+@click.option(
+    "--velocity",
+    default=None,
+    callback=_floats(3),
+    metavar="VX,VY,VZ",
+    help="Start velocity (world units / s) instead of Δz per frame.",
+)
+@click.option(
+    "--duplicate",
+    is_flag=True,
+    help="Simulate a copy at the start; the original stays in place as a static object.",
+)
+@click.option(
+    "--active-mass", type=click.FloatRange(min=0, min_open=True), default=ACTIVE.mass, show_default=True
+)
 @click.option("--active-friction", type=click.FloatRange(min=0), default=ACTIVE.friction, show_default=True)
-@click.option("--active-restitution", type=click.FloatRange(min=0), default=ACTIVE.restitution, show_default=True)
+@click.option(
+    "--active-restitution", type=click.FloatRange(min=0), default=ACTIVE.restitution, show_default=True
+)
 @click.option("--passive-friction", type=click.FloatRange(min=0), default=PASSIVE.friction, show_default=True)
-@click.option("--passive-restitution", type=click.FloatRange(min=0), default=PASSIVE.restitution, show_default=True)
-@click.option("--dt", type=click.FloatRange(min=0, min_open=True), default=1 / 30, show_default="1/30, the bundled models' frame time", help="Seconds between frames.")
+@click.option(
+    "--passive-restitution", type=click.FloatRange(min=0), default=PASSIVE.restitution, show_default=True
+)
+@click.option(
+    "--dt",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1 / 30,
+    show_default="1/30, the bundled models' frame time",
+    help="Seconds between frames.",
+)
 @options.overwrite_option
-def build_graph(volume_path, object_path, environment_path, output, drop_height, delta_z, start, velocity, duplicate,
-                active_mass, active_friction, active_restitution, passive_friction, passive_restitution, dt, overwrite):
+def build_graph(
+    volume_path,
+    object_path,
+    environment_path,
+    output,
+    drop_height,
+    delta_z,
+    start,
+    velocity,
+    duplicate,
+    active_mass,
+    active_friction,
+    active_restitution,
+    passive_friction,
+    passive_restitution,
+    dt,
+    overwrite,
+):
     """Build the 2-frame scene (t-1, t) that `fignetctl rollout` simulates, from the meshes and
     volume.npz of `extract-mesh` (paper, "Building the Graph").
 
@@ -56,10 +130,19 @@ def build_graph(volume_path, object_path, environment_path, output, drop_height,
     environment = load_obj(environment_path or folder / volume.environment_mesh)
     positions = drop_history(volume.origin, drop_height, delta_z, start, velocity, dt)
     scene = build_scene(
-        (obj.vertices, obj.faces), (environment.vertices, environment.faces), volume.origin, positions,
-        Properties(active_mass, active_friction, active_restitution), Properties(0.0, passive_friction, passive_restitution),
-        duplicate, volume.environment_origin, dt,
+        (obj.vertices, obj.faces),
+        (environment.vertices, environment.faces),
+        volume.origin,
+        positions,
+        Properties(active_mass, active_friction, active_restitution),
+        Properties(0.0, passive_friction, passive_restitution),
+        duplicate,
+        volume.environment_origin,
+        dt,
     )
     write_trajectories(path, scene)
-    click.echo(f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}", err=True)
+    click.echo(
+        f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}",
+        err=True,
+    )
     click.echo(str(path))

@@ -8,25 +8,120 @@ from fignetctl.commands import options
 
 
 @click.command("capture-poses")
-@click.option("--images", "images_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Folder of photographs (one size). With --import-*, the images to check the cameras against.")
-@click.option("--video", "video_path", type=click.Path(dir_okay=False, path_type=Path), default=None, help="A video; frames are picked with --every and written to --frames-dir.")
-@click.option("--every", type=click.IntRange(min=1), default=10, show_default=True, help="Video: keep the sharpest frame of each run of N frames.")
-@click.option("--frames-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Video: where the picked frames go.  [default: images/ beside --output]")
-@click.option("--matcher", type=click.Choice(["auto", "exhaustive", "sequential"]), default="auto", show_default=True, help="Feature matching: all pairs, or neighbours in name order; auto: all pairs up to 120 images.")
-@click.option("--camera-model", type=click.Choice(["SIMPLE_PINHOLE", "PINHOLE"]), default="SIMPLE_PINHOLE", show_default=True, help="One camera shared by all images, without distortion.")
-@click.option("--import-transforms", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Take the poses from a transforms.json (nerfstudio / instant-ngp) instead of COLMAP.")
-@click.option("--import-colmap", type=click.Path(file_okay=False, path_type=Path), default=None, help="Take the poses from a COLMAP sparse model folder (cameras/images/points3D .bin or .txt).")
-@click.option("--import-cameras", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Re-align or convert an existing cameras.npz.")
-@click.option("--gravity", type=click.Choice(["auto", "plane", "cameras", "none"]), default="auto", show_default=True, help="Up from the support plane in the sparse points, the cameras' mean up, auto (plane, else cameras), or none (keep the input's frame and scale).")
-@click.option("--camera-height", type=click.FloatRange(min=0, min_open=True), default=None, help="Scale: measured mean height (m) of the camera centres above the support plane.  [default: 0.5]")
-@click.option("--baseline", type=(str, str, click.FloatRange(min=0, min_open=True)), default=None, metavar="IMAGE_A IMAGE_B METRES", help="Scale: measured distance between the cameras of two images (instead of --camera-height).")
-@click.option("--export-transforms", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Also write a transforms.json (OpenGL convention).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path), required=True, help="cameras.npz to write.")
+@click.option(
+    "--images",
+    "images_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Folder of photographs (one size). With --import-*, the images to check the cameras against.",
+)
+@click.option(
+    "--video",
+    "video_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="A video; frames are picked with --every and written to --frames-dir.",
+)
+@click.option(
+    "--every",
+    type=click.IntRange(min=1),
+    default=10,
+    show_default=True,
+    help="Video: keep the sharpest frame of each run of N frames.",
+)
+@click.option(
+    "--frames-dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Video: where the picked frames go.  [default: images/ beside --output]",
+)
+@click.option(
+    "--matcher",
+    type=click.Choice(["auto", "exhaustive", "sequential"]),
+    default="auto",
+    show_default=True,
+    help="Feature matching: all pairs, or neighbours in name order; auto: all pairs up to 120 images.",
+)
+@click.option(
+    "--camera-model",
+    type=click.Choice(["SIMPLE_PINHOLE", "PINHOLE"]),
+    default="SIMPLE_PINHOLE",
+    show_default=True,
+    help="One camera shared by all images, without distortion.",
+)
+@click.option(
+    "--import-transforms",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Take the poses from a transforms.json (nerfstudio / instant-ngp) instead of COLMAP.",
+)
+@click.option(
+    "--import-colmap",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Take the poses from a COLMAP sparse model folder (cameras/images/points3D .bin or .txt).",
+)
+@click.option(
+    "--import-cameras",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Re-align or convert an existing cameras.npz.",
+)
+@click.option(
+    "--gravity",
+    type=click.Choice(["auto", "plane", "cameras", "none"]),
+    default="auto",
+    show_default=True,
+    help="Up from the support plane in the sparse points, the cameras' mean up, auto (plane, else cameras), or none (keep the input's frame and scale).",
+)
+@click.option(
+    "--camera-height",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Scale: measured mean height (m) of the camera centres above the support plane.  [default: 0.5]",
+)
+@click.option(
+    "--baseline",
+    type=(str, str, click.FloatRange(min=0, min_open=True)),
+    default=None,
+    metavar="IMAGE_A IMAGE_B METRES",
+    help="Scale: measured distance between the cameras of two images (instead of --camera-height).",
+)
+@click.option(
+    "--export-transforms",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Also write a transforms.json (OpenGL convention).",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="cameras.npz to write.",
+)
 @options.seed_option
 @options.rerun_option
 @options.overwrite_option
-def capture_poses(images_dir, video_path, every, frames_dir, matcher, camera_model, import_transforms, import_colmap,
-                  import_cameras, gravity, camera_height, baseline, export_transforms, output, seed, rerun_path, overwrite):
+def capture_poses(
+    images_dir,
+    video_path,
+    every,
+    frames_dir,
+    matcher,
+    camera_model,
+    import_transforms,
+    import_colmap,
+    import_cameras,
+    gravity,
+    camera_height,
+    baseline,
+    export_transforms,
+    output,
+    seed,
+    rerun_path,
+    overwrite,
+):
     """Camera poses of a folder of images or a video, in metres with z up (cameras.npz).
 
     COLMAP (pycolmap, CPU) finds the poses with one shared pinhole camera; the up direction
@@ -45,11 +140,18 @@ def capture_poses(images_dir, video_path, every, frames_dir, matcher, camera_mod
     from fignetctl.core import sfm, world_alignment
     from fignetctl.core.cameras import export_transforms_json, write_cameras
 
-    sources = {"--images": images_dir, "--video": video_path, "--import-transforms": import_transforms,
-               "--import-colmap": import_colmap, "--import-cameras": import_cameras}
+    sources = {
+        "--images": images_dir,
+        "--video": video_path,
+        "--import-transforms": import_transforms,
+        "--import-colmap": import_colmap,
+        "--import-cameras": import_cameras,
+    }
     given = [flag for flag, value in sources.items() if value is not None and flag != "--images"]
     if len(given) > 1 or (video_path is not None and images_dir is not None) or not (given or images_dir):
-        raise click.UsageError("give one input: --images DIR, --video FILE, or one of --import-transforms/--import-colmap/--import-cameras (with --images to check them)")
+        raise click.UsageError(
+            "give one input: --images DIR, --video FILE, or one of --import-transforms/--import-colmap/--import-cameras (with --images to check them)"
+        )
     if camera_height is not None and baseline is not None:
         raise click.UsageError("--camera-height and --baseline both set the scale; give one")
     output = options.output_path(output, overwrite)
@@ -58,12 +160,16 @@ def capture_poses(images_dir, video_path, every, frames_dir, matcher, camera_mod
     if rerun_path is not None:
         rerun_path = options.output_path(rerun_path, overwrite, "--rerun")
     settings = sfm.SfmSettings(matcher=matcher, camera_model=camera_model, seed=seed)
-    alignment_settings = world_alignment.AlignmentSettings(gravity=gravity, camera_height=camera_height, baseline=baseline, seed=seed)
+    alignment_settings = world_alignment.AlignmentSettings(
+        gravity=gravity, camera_height=camera_height, baseline=baseline, seed=seed
+    )
 
     staged = None
     try:
         if video_path is not None:
-            frames_dir = options.output_path(frames_dir or output.parent / "images", overwrite, "--frames-dir")
+            frames_dir = options.output_path(
+                frames_dir or output.parent / "images", overwrite, "--frames-dir"
+            )
             staged, cameras = _poses_from_video(video_path, frames_dir, every, settings)
             images_dir = frames_dir
         elif given:
@@ -126,6 +232,10 @@ def _relative_prefix(images_dir, json_dir) -> str:
 def _summary(cameras, alignment) -> str:
     return (
         f"{len(cameras)} cameras, {len(cameras.points)} sparse points; up from {alignment.gravity_source}"
-        + (f" ({alignment.plane_inliers} points on the support plane, now z = 0)" if alignment.plane_inliers else "")
+        + (
+            f" ({alignment.plane_inliers} points on the support plane, now z = 0)"
+            if alignment.plane_inliers
+            else ""
+        )
         + f"; scale from {alignment.scale_source}"
     )

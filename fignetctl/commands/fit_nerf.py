@@ -8,18 +8,64 @@ from fignetctl.commands import options
 @click.command("fit-nerf")
 @click.argument("images_dir", type=click.Path(file_okay=False))
 @click.argument("cameras", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="nerf.pt to write; checkpointed while training.")
-@click.option("--preset", type=click.Choice(["fast", "quality"]), default="fast", show_default=True, help="fast: <=200 px images, diffuse colour, 64 -> 192 grid; quality: <=400 px, colour MLP, 64 -> 320.")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps (a resumed run continues to this).  [default: the preset's]")
-@click.option("--max-image-side", type=click.IntRange(min=8), default=None, help="Downscale images so the longer side is at most this.  [default: the preset's]")
-@click.option("--holdout-every", type=click.IntRange(min=0), default=None, help="Hold out views 0, k, 2k, ... for evaluation (0: none).  [default: 8]")
-@click.option("--rays-per-batch", type=click.IntRange(min=1), default=None, help="Rays per optimiser step.  [default: the preset's]")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    required=True,
+    help="nerf.pt to write; checkpointed while training.",
+)
+@click.option(
+    "--preset",
+    type=click.Choice(["fast", "quality"]),
+    default="fast",
+    show_default=True,
+    help="fast: <=200 px images, diffuse colour, 64 -> 192 grid; quality: <=400 px, colour MLP, 64 -> 320.",
+)
+@click.option(
+    "--steps",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Optimiser steps (a resumed run continues to this).  [default: the preset's]",
+)
+@click.option(
+    "--max-image-side",
+    type=click.IntRange(min=8),
+    default=None,
+    help="Downscale images so the longer side is at most this.  [default: the preset's]",
+)
+@click.option(
+    "--holdout-every",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Hold out views 0, k, 2k, ... for evaluation (0: none).  [default: 8]",
+)
+@click.option(
+    "--rays-per-batch",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Rays per optimiser step.  [default: the preset's]",
+)
 @click.option("--resume", is_flag=True, help="Continue the run saved in --output where it stopped.")
 @options.seed_option
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def fit_nerf(images_dir, cameras, output, preset, steps, max_image_side, holdout_every, rays_per_batch, resume, seed, device, rerun_path, overwrite):
+def fit_nerf(
+    images_dir,
+    cameras,
+    output,
+    preset,
+    steps,
+    max_image_side,
+    holdout_every,
+    rays_per_batch,
+    resume,
+    seed,
+    device,
+    rerun_path,
+    overwrite,
+):
     """Fit a radiance field to IMAGES_DIR posed by CAMERAS (cameras.npz).
 
     A dense density grid and a colour-feature grid with a tiny MLP (DVGO-like), empty space
@@ -46,19 +92,33 @@ def fit_nerf(images_dir, cameras, output, preset, steps, max_image_side, holdout
     if device == "cpu":
         torch.set_num_threads(max(1, min(torch.get_num_threads(), 4)))
     camera_set = read_cameras(cameras)
-    config = preset_config(preset, steps=steps, max_image_side=max_image_side, holdout_every=holdout_every,
-                           rays_per_batch=rays_per_batch, seed=seed)
+    config = preset_config(
+        preset,
+        steps=steps,
+        max_image_side=max_image_side,
+        holdout_every=holdout_every,
+        rays_per_batch=rays_per_batch,
+        seed=seed,
+    )
     data_hash = inputs_hash(images_dir, cameras)
-    trainer = make_trainer(images_dir, camera_set, config, device, path if resume and path.exists() else None, data_hash)
-    with options.progress(total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf") as bar:
+    trainer = make_trainer(
+        images_dir, camera_set, config, device, path if resume and path.exists() else None, data_hash
+    )
+    with options.progress(
+        total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
+    ) as bar:
+
         def on_step(record):
             bar.update(1)
             bar.set_postfix(loss=f"{record['loss']:.4g}", psnr=f"{record['psnr']:.2f}")
 
         trainer.run(path, on_step)
     metrics, renderings = finish(trainer, path)
-    click.echo(f"held-out PSNR {metrics['held_out_psnr']:.2f} dB over {len(metrics['held_out'])} views, "
-               f"{metrics['train_seconds']:.0f} s of training", err=True)
+    click.echo(
+        f"held-out PSNR {metrics['held_out_psnr']:.2f} dB over {len(metrics['held_out'])} views, "
+        f"{metrics['train_seconds']:.0f} s of training",
+        err=True,
+    )
     if rerun_path:
         from fignetctl.core.nerf.visualize import log_fit_to_rerun
 
@@ -69,9 +129,22 @@ def fit_nerf(images_dir, cameras, output, preset, steps, max_image_side, holdout
 @click.command("render-nerf")
 @click.argument("nerf", type=click.Path(dir_okay=False))
 @click.argument("cameras", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Folder for <name>.png, <name>_depth.png and <name>_depth.npy.")
-@click.option("--views", default=None, help="Comma-separated view indices (default: the held-out views, else all).")
-@click.option("--scale", type=click.FloatRange(min=0, min_open=True), default=None, help="Image scale against cameras.npz.  [default: the trained size]")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(file_okay=False),
+    required=True,
+    help="Folder for <name>.png, <name>_depth.png and <name>_depth.npy.",
+)
+@click.option(
+    "--views", default=None, help="Comma-separated view indices (default: the held-out views, else all)."
+)
+@click.option(
+    "--scale",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Image scale against cameras.npz.  [default: the trained size]",
+)
 @options.device_option
 @options.overwrite_option
 def render_nerf(nerf, cameras, output, views, scale, device, overwrite):
@@ -103,8 +176,12 @@ def _parse_views(text, count, model):
     try:
         indices = [int(part) for part in text.split(",") if part.strip()]
     except ValueError:
-        raise click.BadParameter(f"{text!r} is not a comma-separated list of integers", param_hint="--views") from None
+        raise click.BadParameter(
+            f"{text!r} is not a comma-separated list of integers", param_hint="--views"
+        ) from None
     bad = [i for i in indices if not 0 <= i < count]
     if bad or not indices:
-        raise click.BadParameter(f"view {bad[0] if bad else text!r} is not in 0..{count - 1}", param_hint="--views")
+        raise click.BadParameter(
+            f"view {bad[0] if bad else text!r} is not in 0..{count - 1}", param_hint="--views"
+        )
     return indices

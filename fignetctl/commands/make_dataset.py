@@ -17,32 +17,54 @@ def parse_shard(ctx, param, value):
 
 @click.command("make-dataset")
 @click.option(
-    "--preset", type=click.Choice(["movi-b", "movi-c"]), default="movi-b", show_default=True,
+    "--preset",
+    type=click.Choice(["movi-b", "movi-c"]),
+    default="movi-b",
+    show_default=True,
     help="Shapes and materials, after Kubric's MOVi-B / MOVi-C.",
 )
 @click.option(
-    "-n", "--num-trajectories", type=click.IntRange(min=1), default=16, show_default=True,
+    "-n",
+    "--num-trajectories",
+    type=click.IntRange(min=1),
+    default=16,
+    show_default=True,
     help="Trajectories of the whole run (all shards together).",
 )
-@click.option("--fps", type=int, default=None, help="Recorded frames per second; must divide 240.  [default: 30]")
 @click.option(
-    "--duration", type=click.FloatRange(min=0, min_open=True), default=None,
+    "--fps", type=int, default=None, help="Recorded frames per second; must divide 240.  [default: 30]"
+)
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
     help="Seconds per trajectory.  [default: 4]",
 )
 @options.seed_option
 @click.option(
-    "--shard", default="0/1", show_default=True, callback=parse_shard,
+    "--shard",
+    default="0/1",
+    show_default=True,
+    callback=parse_shard,
     help="Write only shard i of n: the trajectories k with k mod n = i.",
 )
 @click.option(
-    "--split", type=click.Choice(["train", "test", "all"]), default="train", show_default=True,
+    "--split",
+    type=click.Choice(["train", "test", "all"]),
+    default="train",
+    show_default=True,
     help="Which shapes (movi-c holds 10% out for test).",
 )
 @click.option(
-    "--jobs", type=click.IntRange(min=1), default=1, show_default=True,
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
     help="Worker processes, each with its own PyBullet.",
 )
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Trajectory file (.h5) to write.")
+@click.option(
+    "-o", "--output", type=click.Path(dir_okay=False), required=True, help="Trajectory file (.h5) to write."
+)
 @options.overwrite_option
 def make_dataset(preset, num_trajectories, fps, duration, seed, shard, split, jobs, output, overwrite):
     """Ground-truth trajectories from PyBullet: 3-10 objects tossed onto a floor.
@@ -73,9 +95,15 @@ def make_dataset(preset, num_trajectories, fps, duration, seed, shard, split, jo
     stats = movi.dataset_stats(results, time.perf_counter() - start, jobs)
     click.echo(summary_line(stats), err=True)
     attrs = {
-        "source": "fignetctl make-dataset", "version": __version__, "preset": preset, "seed": seed,
-        "shard": f"{shard[0]}/{shard[1]}", "num_trajectories": num_trajectories, "split": split,
-        "config": config.to_json(), "stats": json.dumps(stats),
+        "source": "fignetctl make-dataset",
+        "version": __version__,
+        "preset": preset,
+        "seed": seed,
+        "shard": f"{shard[0]}/{shard[1]}",
+        "num_trajectories": num_trajectories,
+        "split": split,
+        "config": config.to_json(),
+        "stats": json.dumps(stats),
         "trajectories_per_minute": stats["trajectories_per_minute"],
     }
     write_trajectories(path, movi.dataset_file(results, assets, config, num_trajectories, attrs))

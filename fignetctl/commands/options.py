@@ -4,10 +4,14 @@ from pathlib import Path
 
 import click
 
-overwrite_option = click.option(
-    "--overwrite", is_flag=True, help="Replace outputs that already exist."
+overwrite_option = click.option("--overwrite", is_flag=True, help="Replace outputs that already exist.")
+seed_option = click.option(
+    "--seed",
+    type=click.IntRange(0, 2**32 - 1),
+    default=0,
+    show_default=True,
+    help="Random seed, 0 to 2**32 - 1.",
 )
-seed_option = click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True, help="Random seed, 0 to 2**32 - 1.")
 device_option = click.option(
     "--device",
     type=click.Choice(["cpu", "cuda", "auto"]),
@@ -15,26 +19,34 @@ device_option = click.option(
     show_default=True,
     help="Torch device; 'auto' uses CUDA when available.",
 )
+
+
 def sleep_option(default):
     return click.option(
-        "--sleep/--no-sleep", default=default, show_default=True,
+        "--sleep/--no-sleep",
+        default=default,
+        show_default=True,
         help="Stop simulating objects that have come to rest, until something comes near them (docs/simulator.md).",
     )
 
 
 def free_flight_option(default):
     return click.option(
-        "--free-flight/--no-free-flight", default=default, show_default=True,
+        "--free-flight/--no-free-flight",
+        default=default,
+        show_default=True,
         help="Move objects that touch nothing in exact free flight (gravity, constant spin) instead of by the "
-             "network, which is not run while nothing touches (docs/simulator.md).",
+        "network, which is not run while nothing touches (docs/simulator.md).",
     )
 
 
 def keep_out_option(default):
     return click.option(
-        "--keep-out/--no-keep-out", default=default, show_default=True,
+        "--keep-out/--no-keep-out",
+        default=default,
+        show_default=True,
         help="After each step, move an object that passed into static geometry (the floor, the environment, "
-             "objects asleep) back out along the face's normal: a geometric guard, not the network (docs/simulator.md).",
+        "objects asleep) back out along the face's normal: a geometric guard, not the network (docs/simulator.md).",
     )
 
 
@@ -112,8 +124,12 @@ def progress(iterable=None, **kwargs):
     elif not terminal:
         stream = _LogLines(stream)
         interval = LOG_INTERVAL_SECONDS if mode == "auto" else 1.0
-        kwargs.update(disable=False, mininterval=interval, delay=interval if mode == "auto" else 0.0,
-                      bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed}<{remaining}, {rate_fmt}]{postfix}")
+        kwargs.update(
+            disable=False,
+            mininterval=interval,
+            delay=interval if mode == "auto" else 0.0,
+            bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed}<{remaining}, {rate_fmt}]{postfix}",
+        )
         return _log_bar()(iterable, file=stream, **kwargs)
     return tqdm(iterable, file=stream, **kwargs)
 

@@ -6,16 +6,31 @@ from fignetctl.commands import options
 
 
 @click.command("render-views")
-@click.option("-o", "--output", type=click.Path(file_okay=False), required=True, help="Capture folder to write.")
-@click.option("--views", type=click.IntRange(min=2), default=40, show_default=True, help="Still views on the orbit.")
-@click.option("--width", type=click.IntRange(16, 4096), default=320, show_default=True, help="Image width, pixels.")
-@click.option("--height", type=click.IntRange(16, 4096), default=240, show_default=True, help="Image height, pixels.")
 @click.option(
-    "--objects", "num_objects", type=click.IntRange(2, 4), default=3, show_default=True,
+    "-o", "--output", type=click.Path(file_okay=False), required=True, help="Capture folder to write."
+)
+@click.option(
+    "--views", type=click.IntRange(min=2), default=40, show_default=True, help="Still views on the orbit."
+)
+@click.option(
+    "--width", type=click.IntRange(16, 4096), default=320, show_default=True, help="Image width, pixels."
+)
+@click.option(
+    "--height", type=click.IntRange(16, 4096), default=240, show_default=True, help="Image height, pixels."
+)
+@click.option(
+    "--objects",
+    "num_objects",
+    type=click.IntRange(2, 4),
+    default=3,
+    show_default=True,
     help="Everyday objects in the tray.",
 )
 @click.option(
-    "--video-step", type=click.IntRange(min=1), default=3, show_default=True,
+    "--video-step",
+    type=click.IntRange(min=1),
+    default=3,
+    show_default=True,
     help="Video frames per view interval (video frame k*step is view k).",
 )
 @options.seed_option
@@ -38,8 +53,16 @@ def render_views(output, views, width, height, num_objects, video_step, seed, no
 
     path = options.output_path(output, overwrite)
     summary = render_capture(
-        path, views=views, width=width, height=height, seed=seed, video=not no_video, overwrite=overwrite,
-        num_objects=num_objects, video_step=video_step, progress=options.progress,
+        path,
+        views=views,
+        width=width,
+        height=height,
+        seed=seed,
+        video=not no_video,
+        overwrite=overwrite,
+        num_objects=num_objects,
+        video_step=video_step,
+        progress=options.progress,
     )
     click.echo(
         f"rendered {summary['views']} views {width}x{height} of {', '.join(summary['objects'])} in "

@@ -9,22 +9,59 @@ from fignetctl.commands import options
 
 @click.command("rollout")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Rollout trajectory file (.h5) to write.")
-@click.option("--model", "model_path", default=None, help="Model file from `fignetctl train`, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]")
-@click.option("--steps", type=click.IntRange(min=1), default=100, show_default=True, help="Frames to predict after the scene's first two.")
-@click.option("--trajectory", "trajectory_id", default=None, help="Which trajectory of SCENE.  [default: the first]")
-@click.option("--sim-scale", default="auto", show_default=True, callback=lambda ctx, param, value: _sim_scale(value),
-              help="Simulate the scene scaled by this factor, or 'auto': a scene whose largest moving object is outside "
-                   "the sizes the model was trained on (recorded in the model file; 1.4-2.8 m for the bundled ones) is "
-                   "brought to their median size (2.1 m), others are left as they are. Scaled frames come back "
-                   "dt / sqrt(scale) apart.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(dir_okay=False),
+    required=True,
+    help="Rollout trajectory file (.h5) to write.",
+)
+@click.option(
+    "--model",
+    "model_path",
+    default=None,
+    help="Model file from `fignetctl train`, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]",
+)
+@click.option(
+    "--steps",
+    type=click.IntRange(min=1),
+    default=100,
+    show_default=True,
+    help="Frames to predict after the scene's first two.",
+)
+@click.option(
+    "--trajectory", "trajectory_id", default=None, help="Which trajectory of SCENE.  [default: the first]"
+)
+@click.option(
+    "--sim-scale",
+    default="auto",
+    show_default=True,
+    callback=lambda ctx, param, value: _sim_scale(value),
+    help="Simulate the scene scaled by this factor, or 'auto': a scene whose largest moving object is outside "
+    "the sizes the model was trained on (recorded in the model file; 1.4-2.8 m for the bundled ones) is "
+    "brought to their median size (2.1 m), others are left as they are. Scaled frames come back "
+    "dt / sqrt(scale) apart.",
+)
 @options.sleep_option(default=True)
 @options.free_flight_option(default=True)
 @options.keep_out_option(default=True)
 @options.device_option
 @options.rerun_option
 @options.overwrite_option
-def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, free_flight, keep_out, device, rerun_path, overwrite):
+def rollout(
+    scene,
+    output,
+    model_path,
+    steps,
+    trajectory_id,
+    sim_scale,
+    sleep,
+    free_flight,
+    keep_out,
+    device,
+    rerun_path,
+    overwrite,
+):
     """Predict --steps frames after the first two frames (t-1, t) of SCENE.
 
     Writes a trajectory file holding the scene's two frames followed by the predicted ones
@@ -49,16 +86,28 @@ def rollout(scene, output, model_path, steps, trajectory_id, sim_scale, sleep, f
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(total=steps, unit="step", desc="rollout") as bar:
         try:
-            result = rollout_file(simulator, scene, trajectory_id, steps, on_step=lambda _: bar.update(1), sim_scale=sim_scale, sleep=sleep,
-                                  free_flight=free_flight, keep_out=keep_out)
+            result = rollout_file(
+                simulator,
+                scene,
+                trajectory_id,
+                steps,
+                on_step=lambda _: bar.update(1),
+                sim_scale=sim_scale,
+                sleep=sleep,
+                free_flight=free_flight,
+                keep_out=keep_out,
+            )
             error = None
         except RolloutError as failure:
             result, error = failure.partial_file, failure
     _write(result, path, rerun_path)
     scale = float(result.attrs["sim_scale"])
     if scale != 1.0:
-        click.echo(f"simulated at {scale:.4g}x its size, as the model knows objects of that size; "
-                   f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)", err=True)
+        click.echo(
+            f"simulated at {scale:.4g}x its size, as the model knows objects of that size; "
+            f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)",
+            err=True,
+        )
     if error is not None:
         raise click.ClickException(f"{error} (written to {path})")
     click.echo(str(path))

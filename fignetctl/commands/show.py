@@ -7,11 +7,36 @@ from fignetctl.commands import options
 
 @click.command("show")
 @click.argument("path", type=click.Path(dir_okay=False))
-@click.option("--trajectory", "trajectory_id", default=None, help="Trajectory for --video/--png/--rerun: its id (00003) or number (3).  [default: the first]")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None, help="Also write the summary as json.")
-@click.option("--video", "video_path", type=click.Path(dir_okay=False), default=None, help="Render an mp4 preview of the trajectory.")
-@click.option("--png", "png_path", type=click.Path(dir_okay=False), default=None, help="Render one frame (--frame) to PNG.")
-@click.option("--frame", type=int, default=-1, show_default=True, help="Frame for --png (negative counts from the end).")
+@click.option(
+    "--trajectory",
+    "trajectory_id",
+    default=None,
+    help="Trajectory for --video/--png/--rerun: its id (00003) or number (3).  [default: the first]",
+)
+@click.option(
+    "--json",
+    "json_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Also write the summary as json.",
+)
+@click.option(
+    "--video",
+    "video_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Render an mp4 preview of the trajectory.",
+)
+@click.option(
+    "--png",
+    "png_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Render one frame (--frame) to PNG.",
+)
+@click.option(
+    "--frame", type=int, default=-1, show_default=True, help="Frame for --png (negative counts from the end)."
+)
 @options.rerun_option
 @options.overwrite_option
 def show(path, trajectory_id, json_path, video_path, png_path, frame, rerun_path, overwrite):
@@ -62,4 +87,6 @@ def _trajectory_key(data, trajectory_id):
             if key.isdigit() and int(key) == int(trajectory_id):
                 return key
     known = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
-    raise click.BadParameter(f"no trajectory {trajectory_id!r} (the file has {known})", param_hint="--trajectory")
+    raise click.BadParameter(
+        f"no trajectory {trajectory_id!r} (the file has {known})", param_hint="--trajectory"
+    )

@@ -107,7 +107,9 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None, m
         reach = radius
         if margins is not None:
             with_static = face_static[face_i] | face_static[face_j]
-            reach = radius + np.where(with_static, margins[face_object[face_i]] + margins[face_object[face_j]], 0.0)
+            reach = radius + np.where(
+                with_static, margins[face_object[face_i]] + margins[face_object[face_j]], 0.0
+            )
         face_i, face_j = _pairs_within_exact_distance(triangles, face_i, face_j, reach)
         found_i.append(face_i)
         found_j.append(face_j)
@@ -237,7 +239,9 @@ def _group_pairs_in_reach(groups, group_static, radius, margins):
     lower = np.stack([group.lower for group in groups])
     upper = np.stack([group.upper for group in groups])
     first, second = np.triu_indices(len(groups), k=1)
-    reach = radius + np.where(group_static[first] | group_static[second], margins[first] + margins[second], 0.0)
+    reach = radius + np.where(
+        group_static[first] | group_static[second], margins[first] + margins[second], 0.0
+    )
     box_gap = np.maximum(lower[first] - upper[second], lower[second] - upper[first]).max(axis=-1)
     keep = (box_gap <= _slack(reach)) & ~(group_static[first] & group_static[second])
     return list(zip(first[keep].tolist(), second[keep].tolist(), reach[keep].tolist()))
@@ -260,7 +264,9 @@ def _group_pair_candidates(group_1, group_2, radius):
 def _within_conservative_bounds(bounds_1, bounds_2, local_1, local_2, radius):
     """True where the bounding spheres and the boxes grown by radius both allow contact."""
     slack_radius = _slack(radius)
-    sphere_reach = slack_radius + (bounds_1.radii[local_1] + bounds_2.radii[local_2]) * (1.0 + BOUND_RELATIVE_SLACK)
+    sphere_reach = slack_radius + (bounds_1.radii[local_1] + bounds_2.radii[local_2]) * (
+        1.0 + BOUND_RELATIVE_SLACK
+    )
     centre_offsets = bounds_1.centres[local_1] - bounds_2.centres[local_2]
     centre_gap = np.sqrt(np.einsum("pj,pj->p", centre_offsets, centre_offsets))
     box_gaps = np.maximum(

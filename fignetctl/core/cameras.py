@@ -104,7 +104,9 @@ def validate(cameras: Cameras, where: str = "cameras") -> Cameras:
         bad = ~np.isfinite(value)
         if bad.any():
             first = np.argwhere(bad)[0]
-            raise FormatError(f"{where}: '{field}' holds NaN or inf (first at index {tuple(int(i) for i in first)})")
+            raise FormatError(
+                f"{where}: '{field}' holds NaN or inf (first at index {tuple(int(i) for i in first)})"
+            )
     width, height = int(cameras.width), int(cameras.height)
     if width <= 0 or height <= 0:
         raise FormatError(f"{where}: image size {width}x{height} is not positive")
@@ -114,7 +116,9 @@ def validate(cameras: Cameras, where: str = "cameras") -> Cameras:
     orthogonality = np.abs(np.einsum("nji,njk->nik", rotations, rotations) - np.eye(3)).max(axis=(1, 2))
     if (orthogonality > 1e-4).any() or (np.linalg.det(rotations) < 0).any():
         worst = int(np.argmax(orthogonality))
-        raise FormatError(f"{where}: 'c2w' of camera {worst} ({names[worst]}) is not a rotation and a translation")
+        raise FormatError(
+            f"{where}: 'c2w' of camera {worst} ({names[worst]}) is not a rotation and a translation"
+        )
     if len(colors) != len(points):
         raise FormatError(f"{where}: {len(points)} points but {len(colors)} point colours")
     if colors.size and (colors.min() < 0 or colors.max() > 255):
@@ -151,7 +155,9 @@ def write_cameras(path, cameras: Cameras) -> None:
 def read_cameras(path) -> Cameras:
     """Read and check `cameras.npz`; any problem is a FormatError naming the file and field."""
     path = Path(path)
-    arrays = read_npz_document(path, "cameras.npz", FORMAT, FORMAT_VERSION, ("image_names", "K", "c2w", "width", "height"))
+    arrays = read_npz_document(
+        path, "cameras.npz", FORMAT, FORMAT_VERSION, ("image_names", "K", "c2w", "width", "height")
+    )
     try:
         cameras = Cameras(
             image_names=arrays["image_names"],
@@ -177,7 +183,9 @@ def check_images_match(cameras: Cameras, image_dir, where: str = "cameras") -> l
     for name in cameras.image_names:
         file = image_dir / str(name)
         if not file.is_file():
-            raise FormatError(f"{where}: image {name!r} is not in {image_dir}; are these the images the cameras were made from?")
+            raise FormatError(
+                f"{where}: image {name!r} is not in {image_dir}; are these the images the cameras were made from?"
+            )
         image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
         if image is None:
             raise FormatError(f"{file}: not a readable image")
@@ -250,7 +258,9 @@ def import_transforms_json(path, image_dir=None) -> Cameras:
         c2ws.append(matrix @ OPENCV_TO_OPENGL)
         sizes.append((width, height))
     if len(set(sizes)) > 1:
-        raise FormatError(f"{path}: the frames have different image sizes {sorted(set(sizes))}; fignetctl needs one size")
+        raise FormatError(
+            f"{path}: the frames have different image sizes {sorted(set(sizes))}; fignetctl needs one size"
+        )
     # Some exporters scale the rotation part; keep only the rotation.
     c2ws = np.array(c2ws)
     u, _, vt = np.linalg.svd(c2ws[:, :3, :3])
@@ -286,7 +296,11 @@ def _frame_K(intrinsics: dict, width: int, height: int) -> np.ndarray:
         fy = float(intrinsics.get("fl_y", fx))
     elif "camera_angle_x" in intrinsics:
         fx = width / (2.0 * math.tan(float(intrinsics["camera_angle_x"]) / 2.0))
-        fy = height / (2.0 * math.tan(float(intrinsics["camera_angle_y"]) / 2.0)) if "camera_angle_y" in intrinsics else fx
+        fy = (
+            height / (2.0 * math.tan(float(intrinsics["camera_angle_y"]) / 2.0))
+            if "camera_angle_y" in intrinsics
+            else fx
+        )
     else:
         raise ValueError("no intrinsics: neither 'fl_x' nor 'camera_angle_x'")
     cx = float(intrinsics.get("cx", width / 2.0))

@@ -89,9 +89,15 @@ class CaptureSettings:
             (16 <= self.width <= 4096, f"width must be in 16..4096 pixels, got {self.width}"),
             (16 <= self.height <= 4096, f"height must be in 16..4096 pixels, got {self.height}"),
             (self.video_step >= 1, f"video_step must be at least 1, got {self.video_step}"),
-            (2 <= self.num_objects <= len(OBJECT_ASSETS), f"num_objects must be in 2..{len(OBJECT_ASSETS)}, got {self.num_objects}"),
+            (
+                2 <= self.num_objects <= len(OBJECT_ASSETS),
+                f"num_objects must be in 2..{len(OBJECT_ASSETS)}, got {self.num_objects}",
+            ),
             (0 < self.fov_y_deg < 150, f"fov_y_deg must be in (0, 150), got {self.fov_y_deg}"),
-            (self.prompts_per_object >= 2, f"prompts_per_object must be at least 2, got {self.prompts_per_object}"),
+            (
+                self.prompts_per_object >= 2,
+                f"prompts_per_object must be at least 2, got {self.prompts_per_object}",
+            ),
         ]
         for ok, message in checks:
             if not ok:
@@ -120,7 +126,9 @@ class ObjectAsset:
 
 OBJECT_ASSETS = (
     ObjectAsset("duck", "duck.obj", "duck_vhacd.urdf", 0.05, (math.pi / 2, 0, 0), None),
-    ObjectAsset("teddy", "teddy2_VHACD_CHs.obj", "teddy_vhacd.urdf", 0.15, (math.pi / 2, 0, 0), (0.62, 0.38, 0.2, 1)),
+    ObjectAsset(
+        "teddy", "teddy2_VHACD_CHs.obj", "teddy_vhacd.urdf", 0.15, (math.pi / 2, 0, 0), (0.62, 0.38, 0.2, 1)
+    ),
     ObjectAsset("ball", "soccerball.obj", "soccerball.urdf", 0.12, (0, 0, 0), None),
     ObjectAsset("brick", "lego/lego.obj", "lego/lego.urdf", 0.2, (math.pi / 2, 0, 0), (0.85, 0.1, 0.1, 1)),
     ObjectAsset("mug", "objects/mug.obj", "objects/mug.urdf", 1.0, (0, 0, 0), (0.15, 0.35, 0.85, 1)),
@@ -131,8 +139,14 @@ TRAY_FLOOR_TOP = 0.01  # height of the tray's inner floor in mesh units
 TABLE_HALF = 1.2  # the table top is 2.4 m square, its top at z = 0
 TABLE_THICKNESS = 0.04
 WALL_HEIGHT = 1.0
-LIGHT = dict(lightDirection=[0.5, 0.3, 1.0], lightColor=[1, 1, 1], lightDistance=10.0,
-             lightAmbientCoeff=0.55, lightDiffuseCoeff=0.5, lightSpecularCoeff=0.05)
+LIGHT = dict(
+    lightDirection=[0.5, 0.3, 1.0],
+    lightColor=[1, 1, 1],
+    lightDistance=10.0,
+    lightAmbientCoeff=0.55,
+    lightDiffuseCoeff=0.5,
+    lightSpecularCoeff=0.05,
+)
 
 
 @dataclasses.dataclass
@@ -155,8 +169,9 @@ class SceneObject:
         return self.role == "object"
 
 
-def render_capture(out_dir, views=40, width=320, height=240, seed=0, video=True, overwrite=False,
-                   progress=None, **settings) -> dict:
+def render_capture(
+    out_dir, views=40, width=320, height=240, seed=0, video=True, overwrite=False, progress=None, **settings
+) -> dict:
     """Render the bundled capture into `out_dir` (a folder; see the module docstring).
 
     `settings` are further CaptureSettings fields (video_step, num_objects, fov_y_deg, ...).
@@ -164,15 +179,23 @@ def render_capture(out_dir, views=40, width=320, height=240, seed=0, video=True,
     unless `overwrite`. Returns a summary dict (paths, counts, seconds).
     """
     try:
-        config = CaptureSettings(views=int(views), width=int(width), height=int(height), seed=int(seed),
-                                 video=bool(video), **settings).validate()
+        config = CaptureSettings(
+            views=int(views),
+            width=int(width),
+            height=int(height),
+            seed=int(seed),
+            video=bool(video),
+            **settings,
+        ).validate()
     except TypeError as error:
         raise FignetError(f"bad capture setting: {error}") from None
     out_dir = Path(out_dir)
     if out_dir.exists() and not overwrite:
         raise FignetError(f"{out_dir} exists; pass --overwrite to replace it")
     with _atomic_folder(out_dir) as tmp:
-        return _render_into(tmp, config, progress or (lambda iterable, **kw: iterable)) | {"output": str(out_dir)}
+        return _render_into(tmp, config, progress or (lambda iterable, **kw: iterable)) | {
+            "output": str(out_dir)
+        }
 
 
 def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
@@ -194,13 +217,27 @@ def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
     names = _write_views(folder, config, objects, cameras, renders)
     total = time.perf_counter() - start
     summary = {
-        "views": config.views, "width": config.width, "height": config.height, "video_frames": video_frames,
-        "objects": [o.name for o in objects if o.movable], "build_seconds": round(build_seconds, 3),
-        "seconds_per_view": round(render_seconds / config.views, 4), "total_seconds": round(total, 3),
+        "views": config.views,
+        "width": config.width,
+        "height": config.height,
+        "video_frames": video_frames,
+        "objects": [o.name for o in objects if o.movable],
+        "build_seconds": round(build_seconds, 3),
+        "seconds_per_view": round(render_seconds / config.views, 4),
+        "total_seconds": round(total, 3),
     }
-    log.info("rendered %d views %dx%d in %.2f s (%.1f ms per view)", config.views, config.width,
-             config.height, total, 1000 * render_seconds / config.views)
-    _write_json(folder / "ground_truth" / "scene.json", scene_document(objects, config, cameras, names) | {"summary": summary})
+    log.info(
+        "rendered %d views %dx%d in %.2f s (%.1f ms per view)",
+        config.views,
+        config.width,
+        config.height,
+        total,
+        1000 * render_seconds / config.views,
+    )
+    _write_json(
+        folder / "ground_truth" / "scene.json",
+        scene_document(objects, config, cameras, names) | {"summary": summary},
+    )
     return summary
 
 
@@ -210,15 +247,24 @@ def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
 def build_scene(client, config: CaptureSettings, texture_dir: Path) -> list[SceneObject]:
     """Create the table, backdrop, tray and objects in PyBullet; return them in id order."""
     rng = np.random.default_rng(config.seed)
-    texture_rngs = [np.random.default_rng([config.seed, k]) for k in (1, 2)]  # textures do not shift the scene
-    table = _procedural_body(client, 0, "table", "support", *table_mesh(), texture_rngs[0], config, texture_dir)
-    backdrop = _procedural_body(client, 1, "backdrop", "backdrop", *backdrop_mesh(), texture_rngs[1], config, texture_dir)
+    texture_rngs = [
+        np.random.default_rng([config.seed, k]) for k in (1, 2)
+    ]  # textures do not shift the scene
+    table = _procedural_body(
+        client, 0, "table", "support", *table_mesh(), texture_rngs[0], config, texture_dir
+    )
+    backdrop = _procedural_body(
+        client, 1, "backdrop", "backdrop", *backdrop_mesh(), texture_rngs[1], config, texture_dir
+    )
     tray_position = np.array([0.0, 0.0, tray_lift()])  # its base on the table top
     tray = _file_body(client, 2, TRAY, "container", tray_position, np.array([1.0, 0, 0, 0]))
     chosen = rng.choice(len(OBJECT_ASSETS), size=config.num_objects, replace=False)
     assets = [OBJECT_ASSETS[i] for i in sorted(chosen)]
     poses = place_in_tray(assets, rng)
-    items = [_file_body(client, 3 + i, asset, "object", *pose) for i, (asset, pose) in enumerate(zip(assets, poses))]
+    items = [
+        _file_body(client, 3 + i, asset, "object", *pose)
+        for i, (asset, pose) in enumerate(zip(assets, poses))
+    ]
     return [table, backdrop, tray, *items]
 
 
@@ -290,8 +336,12 @@ def object_orientation(upright_euler, yaw) -> np.ndarray:
     then z), then turn it by `yaw` about the world z axis."""
     import pybullet as p
 
-    _, quaternion = p.multiplyTransforms([0, 0, 0], p.getQuaternionFromEuler([0, 0, yaw]),
-                                         [0, 0, 0], p.getQuaternionFromEuler(list(upright_euler)))
+    _, quaternion = p.multiplyTransforms(
+        [0, 0, 0],
+        p.getQuaternionFromEuler([0, 0, yaw]),
+        [0, 0, 0],
+        p.getQuaternionFromEuler(list(upright_euler)),
+    )
     return _xyzw_to_wxyz(quaternion)
 
 
@@ -345,35 +395,70 @@ def _file_body(client, index, asset: ObjectAsset, role, position, quaternion_wxy
     import pybullet_data
 
     kwargs = {"rgbaColor": list(asset.rgba)} if asset.rgba else {}
-    shape = p.createVisualShape(p.GEOM_MESH, fileName=os.path.join(pybullet_data.getDataPath(), asset.mesh),
-                                meshScale=[asset.scale] * 3, physicsClientId=client, **kwargs)
+    shape = p.createVisualShape(
+        p.GEOM_MESH,
+        fileName=os.path.join(pybullet_data.getDataPath(), asset.mesh),
+        meshScale=[asset.scale] * 3,
+        physicsClientId=client,
+        **kwargs,
+    )
     w, x, y, z = quaternion_wxyz
-    body = p.createMultiBody(baseVisualShapeIndex=shape, basePosition=list(position),
-                             baseOrientation=[x, y, z, w], physicsClientId=client)
+    body = p.createMultiBody(
+        baseVisualShapeIndex=shape,
+        basePosition=list(position),
+        baseOrientation=[x, y, z, w],
+        physicsClientId=client,
+    )
     if body != index:
         raise FignetError(f"internal: body {asset.name} got PyBullet id {body}, expected {index}")
     vertices, faces = _load_mesh(asset.mesh)
     world = (vertices * asset.scale) @ _matrix_from_wxyz(quaternion_wxyz).T + position
-    return SceneObject(index, asset.name, role, world, faces, np.asarray(position, float),
-                       np.asarray(quaternion_wxyz, float), asset.scale, asset.mesh, asset.urdf)
+    return SceneObject(
+        index,
+        asset.name,
+        role,
+        world,
+        faces,
+        np.asarray(position, float),
+        np.asarray(quaternion_wxyz, float),
+        asset.scale,
+        asset.mesh,
+        asset.urdf,
+    )
 
 
-def _procedural_body(client, index, name, role, vertices, faces, uvs, rng, config, texture_dir) -> SceneObject:
+def _procedural_body(
+    client, index, name, role, vertices, faces, uvs, rng, config, texture_dir
+) -> SceneObject:
     import cv2
     import pybullet as p
 
-    texture = procedural_texture(rng, config.texture_size if role == "support" else config.texture_size // 2,
-                                 aspect=1 if role == "support" else 4)
+    texture = procedural_texture(
+        rng,
+        config.texture_size if role == "support" else config.texture_size // 2,
+        aspect=1 if role == "support" else 4,
+    )
     file = texture_dir / f"{name}.png"
     cv2.imwrite(str(file), texture[:, :, ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 0])
     normals = _vertex_normals(vertices, faces)
-    shape = p.createVisualShape(p.GEOM_MESH, vertices=vertices.tolist(), indices=faces.reshape(-1).tolist(),
-                                uvs=uvs.tolist(), normals=normals.tolist(), physicsClientId=client)
+    shape = p.createVisualShape(
+        p.GEOM_MESH,
+        vertices=vertices.tolist(),
+        indices=faces.reshape(-1).tolist(),
+        uvs=uvs.tolist(),
+        normals=normals.tolist(),
+        physicsClientId=client,
+    )
     body = p.createMultiBody(baseVisualShapeIndex=shape, physicsClientId=client)
     if body != index:
         raise FignetError(f"internal: body {name} got PyBullet id {body}, expected {index}")
-    p.changeVisualShape(body, -1, textureUniqueId=p.loadTexture(str(file), physicsClientId=client),
-                        rgbaColor=[1, 1, 1, 1], physicsClientId=client)
+    p.changeVisualShape(
+        body,
+        -1,
+        textureUniqueId=p.loadTexture(str(file), physicsClientId=client),
+        rgbaColor=[1, 1, 1, 1],
+        physicsClientId=client,
+    )
     return SceneObject(index, name, role, vertices, faces, np.zeros(3), np.array([1.0, 0, 0, 0]))
 
 
@@ -416,14 +501,26 @@ def _draw_random_mark(image, rng, scale):
         axes = (int(size), int(size * rng.uniform(0.3, 1)))
         cv2.ellipse(image, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1, cv2.LINE_AA)
     elif kind == 1:
-        corner = (centre[0] + int(rng.uniform(-1.5, 1.5) * size), centre[1] + int(rng.uniform(-1.5, 1.5) * size))
+        corner = (
+            centre[0] + int(rng.uniform(-1.5, 1.5) * size),
+            centre[1] + int(rng.uniform(-1.5, 1.5) * size),
+        )
         cv2.rectangle(image, centre, corner, colour, -1, cv2.LINE_AA)
     elif kind == 2:
         end = (centre[0] + int(rng.uniform(-3, 3) * size), centre[1] + int(rng.uniform(-3, 3) * size))
         cv2.line(image, centre, end, colour, max(1, int(scale)), cv2.LINE_AA)
     else:
         text = "".join(rng.choice(list("ABCDEFGHJKLMNPRSTUVWXYZ23456789"), 3))
-        cv2.putText(image, text, centre, cv2.FONT_HERSHEY_SIMPLEX, size / 20, colour, max(1, int(size / 8)), cv2.LINE_AA)
+        cv2.putText(
+            image,
+            text,
+            centre,
+            cv2.FONT_HERSHEY_SIMPLEX,
+            size / 20,
+            colour,
+            max(1, int(size / 8)),
+            cv2.LINE_AA,
+        )
 
 
 # Cameras ----------------------------------------------------------------------------------
@@ -444,9 +541,12 @@ def orbit_cameras(config: CaptureSettings, steps: np.ndarray):
     elevation = 0.5 * (low + high) + 0.5 * (high - low) * np.sin(2 * azimuth)
     target = look_at_point()
     eyes = target + config.radius * np.stack(
-        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1)
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
+    )
     views = [p.computeViewMatrix(eye.tolist(), target.tolist(), [0, 0, 1]) for eye in eyes]
-    projection = p.computeProjectionMatrixFOV(config.fov_y_deg, config.width / config.height, config.near, config.far)
+    projection = p.computeProjectionMatrixFOV(
+        config.fov_y_deg, config.width / config.height, config.near, config.far
+    )
     c2w = np.stack([view_matrix_to_c2w(view) for view in views])
     return {"eyes": eyes, "K": intrinsics(config), "c2w": c2w, "views": views, "projection": projection}
 
@@ -481,8 +581,15 @@ def render_one(client, config: CaptureSettings, view, projection):
     import pybullet as p
 
     _, _, rgba, depth, seg = p.getCameraImage(
-        config.width, config.height, view, projection, renderer=p.ER_TINY_RENDERER, shadow=1,
-        physicsClientId=client, **LIGHT)
+        config.width,
+        config.height,
+        view,
+        projection,
+        renderer=p.ER_TINY_RENDERER,
+        shadow=1,
+        physicsClientId=client,
+        **LIGHT,
+    )
     shape = (config.height, config.width)
     rgb = np.reshape(np.asarray(rgba, np.uint8), (*shape, 4))[:, :, :3]
     depth = linearize_depth(np.reshape(depth, shape), config.near, config.far)
@@ -529,19 +636,34 @@ def _write_views(folder: Path, config, objects, cameras, renders) -> list[str]:
         if not cv2.imwrite(str(images / name), np.ascontiguousarray(image[:, :, ::-1])):
             raise FignetError(f"cannot write {images / name}")
     K = np.repeat(cameras["K"][None], config.views, axis=0)
-    points, colors = sample_points(depth, masks, rgb, cameras["K"], cameras["c2w"], config.points, config.seed)
-    write_cameras(ground_truth / "cameras.npz", Cameras(np.array(names), K, cameras["c2w"], config.width,
-                                                        config.height, points, colors))
+    points, colors = sample_points(
+        depth, masks, rgb, cameras["K"], cameras["c2w"], config.points, config.seed
+    )
+    write_cameras(
+        ground_truth / "cameras.npz",
+        Cameras(np.array(names), K, cameras["c2w"], config.width, config.height, points, colors),
+    )
     np.savez_compressed(ground_truth / "depth.npz", depth=depth, image_names=np.array(names))
-    np.savez_compressed(ground_truth / "masks.npz", masks=masks, ids=np.array([o.id for o in objects], np.int16),
-                        names=np.array([o.name for o in objects]), image_names=np.array(names))
+    np.savez_compressed(
+        ground_truth / "masks.npz",
+        masks=masks,
+        ids=np.array([o.id for o in objects], np.int16),
+        names=np.array([o.name for o in objects]),
+        image_names=np.array(names),
+    )
     for item in objects:
         write_obj(ground_truth / "objects" / f"{item.name}.obj", item.vertices, item.faces)
     _write_json(folder / "prompts.json", prompts_document(objects, masks, names, cameras["eyes"], config))
     # What a user would measure with a tape: the cameras' mean height above the table top
     # (z = 0), for capture-poses --camera-height.
-    _write_json(folder / "measurements.json", {"format": "fignetctl.measurements", "format_version": 1,
-                                               "camera_height_m": float(np.mean(cameras["eyes"][:, 2]))})
+    _write_json(
+        folder / "measurements.json",
+        {
+            "format": "fignetctl.measurements",
+            "format_version": 1,
+            "camera_height_m": float(np.mean(cameras["eyes"][:, 2])),
+        },
+    )
     return names
 
 
@@ -592,12 +714,26 @@ def prompts_document(objects, masks, names, eyes, config) -> dict:
         if len(chosen) < 2:  # seen well only from one side of the orbit: take nearby views too
             chosen = _spread_views(scores, eyes, config.prompts_per_object, min_angle_deg=0.0)
         if len(chosen) < 2:
-            raise FignetError(f"{item.name} is visible in fewer than 2 views; try another --seed or more --views")
-        points = [{"image": names[i], "u": depths[i][1], "v": depths[i][2], "inscribed_radius_px": round(depths[i][0], 2)}
-                  for i in chosen]
+            raise FignetError(
+                f"{item.name} is visible in fewer than 2 views; try another --seed or more --views"
+            )
+        points = [
+            {
+                "image": names[i],
+                "u": depths[i][1],
+                "v": depths[i][2],
+                "inscribed_radius_px": round(depths[i][0], 2),
+            }
+            for i in chosen
+        ]
         entries.append({"id": item.id, "name": item.name, "points": points})
-    return {"format": PROMPTS_FORMAT, "format_version": FORMAT_VERSION, "image_dir": "images",
-            "pixel_convention": "u column, v row, integer pixel index from the top left", "objects": entries}
+    return {
+        "format": PROMPTS_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "image_dir": "images",
+        "pixel_convention": "u column, v row, integer pixel index from the top left",
+        "objects": entries,
+    }
 
 
 def _spread_views(score, eyes, count, min_angle_deg=40.0):
@@ -622,15 +758,29 @@ def scene_document(objects, config, cameras, names) -> dict:
     lows = np.min([o.vertices.min(0) for o in objects], axis=0)
     highs = np.max([o.vertices.max(0) for o in objects], axis=0)
     return {
-        "format": SCENE_FORMAT, "format_version": FORMAT_VERSION, "source": "fignetctl render-views",
-        "version": __version__, "units": "metres", "up": "+z",
+        "format": SCENE_FORMAT,
+        "format_version": FORMAT_VERSION,
+        "source": "fignetctl render-views",
+        "version": __version__,
+        "units": "metres",
+        "up": "+z",
         "world_vertex": "R(quaternion_wxyz) . (scale . mesh_file_vertex) + position; objects/<name>.obj is already in world",
-        "objects": [{
-            "id": o.id, "name": o.name, "role": o.role, "movable": o.movable, "urdf": o.urdf, "mesh_file": o.mesh,
-            "gt_mesh": f"objects/{o.name}.obj", "scale": o.scale, "position": o.position.round(6).tolist(),
-            "quaternion_wxyz": o.quaternion_wxyz.round(8).tolist(),
-            "bounds": [o.vertices.min(0).round(5).tolist(), o.vertices.max(0).round(5).tolist()],
-        } for o in objects],
+        "objects": [
+            {
+                "id": o.id,
+                "name": o.name,
+                "role": o.role,
+                "movable": o.movable,
+                "urdf": o.urdf,
+                "mesh_file": o.mesh,
+                "gt_mesh": f"objects/{o.name}.obj",
+                "scale": o.scale,
+                "position": o.position.round(6).tolist(),
+                "quaternion_wxyz": o.quaternion_wxyz.round(8).tolist(),
+                "bounds": [o.vertices.min(0).round(5).tolist(), o.vertices.max(0).round(5).tolist()],
+            }
+            for o in objects
+        ],
         "bounds": [lows.round(5).tolist(), highs.round(5).tolist()],
         "look_at": look_at_point().tolist(),
         "image_names": names,

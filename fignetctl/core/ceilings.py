@@ -42,10 +42,14 @@ def generator_config(data: TrajectoryFile) -> movi.MoviConfig:
     """The MoviConfig in the file's `config` attribute (make-dataset writes it), checked against
     the file's frame time; FignetError for a file without it."""
     if "config" not in data.attrs:
-        raise FignetError("this trajectory file was not made by `fignetctl make-dataset` (no generator config)")
+        raise FignetError(
+            "this trajectory file was not made by `fignetctl make-dataset` (no generator config)"
+        )
     config = movi.config_from_json(data.attrs["config"])
     if not np.isclose(config.dt, data.dt, rtol=1e-9) or not np.allclose(config.gravity, data.gravity):
-        raise FignetError(f"the file's dt {data.dt:g} s or gravity is not its generator config's ({config.dt:g} s)")
+        raise FignetError(
+            f"the file's dt {data.dt:g} s or gravity is not its generator config's ({config.dt:g} s)"
+        )
     return config
 
 
@@ -62,8 +66,12 @@ def check_assets_match_file(assets, data: TrajectoryFile) -> None:
     for asset in assets:
         mesh = data.meshes.get(str(asset.name))
         vertices = np.asarray(asset.vertices, np.float32)
-        if mesh is not None and (mesh.vertices.shape != vertices.shape or not np.array_equal(mesh.vertices, vertices)):
-            raise FignetError(f"shape {asset.name!r} is not the one that made this file (has its recipe changed?)")
+        if mesh is not None and (
+            mesh.vertices.shape != vertices.shape or not np.array_equal(mesh.vertices, vertices)
+        ):
+            raise FignetError(
+                f"shape {asset.name!r} is not the one that made this file (has its recipe changed?)"
+            )
 
 
 def object_specs(trajectory, config: movi.MoviConfig, asset_index: dict, simulator) -> list:
@@ -75,10 +83,14 @@ def object_specs(trajectory, config: movi.MoviConfig, asset_index: dict, simulat
     specs = []
     for o in range(1, trajectory.num_objects):
         material = stored_material(config, trajectory.friction[o], trajectory.restitution[o])
-        spec = movi.ObjectSpec(asset_index[str(trajectory.mesh_names[o])], float(trajectory.scales[o]), material)
+        spec = movi.ObjectSpec(
+            asset_index[str(trajectory.mesh_names[o])], float(trajectory.scales[o]), material
+        )
         mass, _ = movi.object_mass_properties(simulator.asset(spec.asset), spec)
         if not np.isclose(mass, trajectory.mass[o], rtol=MASS_RTOL, atol=0.0):
-            raise FignetError(f"object {o} weighs {trajectory.mass[o]:.6g} kg in the file but {mass:.6g} kg rebuilt")
+            raise FignetError(
+                f"object {o} weighs {trajectory.mass[o]:.6g} kg in the file but {mass:.6g} kg rebuilt"
+            )
         specs.append(spec)
     return specs
 
@@ -87,7 +99,9 @@ def check_floor(trajectory, config: movi.MoviConfig) -> None:
     """FignetError unless object 0 is the config's floor and every other object is dynamic."""
     layout = [True] + [False] * (trajectory.num_objects - 1)
     if str(trajectory.mesh_names[0]) != movi.FLOOR_NAME or trajectory.static.tolist() != layout:
-        raise FignetError("a make-dataset trajectory has the floor as object 0 and only dynamic objects after it")
+        raise FignetError(
+            "a make-dataset trajectory has the floor as object 0 and only dynamic objects after it"
+        )
     floor = (np.float32(config.floor_friction), np.float32(config.floor_restitution))
     if (trajectory.friction[0], trajectory.restitution[0]) != floor:
         raise FignetError("the floor's friction and restitution are not the generator config's")
@@ -99,7 +113,9 @@ def stored_material(config: movi.MoviConfig, friction, restitution) -> movi.Mate
     for material in config.materials:
         if (np.float32(material.friction), np.float32(material.restitution)) == stored:
             return material
-    raise FignetError(f"no material of the generator config has friction {friction:g} and restitution {restitution:g}")
+    raise FignetError(
+        f"no material of the generator config has friction {friction:g} and restitution {restitution:g}"
+    )
 
 
 # ----------------------------------------------------------------------------- restarts
@@ -115,7 +131,9 @@ def finite_difference_velocities(positions, quaternions, dt):
     return linear[1], angular[1]
 
 
-def restarted_frame(simulator, bodies, specs, positions, quaternions, velocities, angular_velocities) -> tuple:
+def restarted_frame(
+    simulator, bodies, specs, positions, quaternions, velocities, angular_velocities
+) -> tuple:
     """One frame of PyBullet with the dynamic objects put in the given state.
 
     bodies : the scene's body ids, the floor first (MoviSimulator.build_scene)
@@ -136,12 +154,16 @@ def restarted_rollout(simulator, specs, trajectory, state: str, num_steps: int, 
     positions = [np.asarray(trajectory.positions[f, 1:], np.float64) for f in (0, 1)]
     quaternions = [np.asarray(trajectory.quaternions[f, 1:], np.float64) for f in (0, 1)]
     if state == "velocity":
-        velocities = [np.asarray(v[1, 1:], np.float64) for v in (trajectory.velocities, trajectory.angular_velocities)]
+        velocities = [
+            np.asarray(v[1, 1:], np.float64) for v in (trajectory.velocities, trajectory.angular_velocities)
+        ]
     kept = simulator.build_scene(specs) if keep_world else None
     for _ in range(num_steps):
         bodies = kept if keep_world else simulator.build_scene(specs)
         if state == "finite-difference":
-            velocities = finite_difference_velocities(np.stack(positions[-2:]), np.stack(quaternions[-2:]), dt)
+            velocities = finite_difference_velocities(
+                np.stack(positions[-2:]), np.stack(quaternions[-2:]), dt
+            )
         pose_and_velocities = (positions[-1], quaternions[-1], *velocities)
         position, quaternion, *velocities = restarted_frame(simulator, bodies, specs, *pose_and_velocities)
         positions.append(position)
@@ -191,9 +213,13 @@ class RestartedPyBullet:
             raise FignetError(f"no trajectory {trajectory_id!r} in the file")
         trajectory = self.data.trajectories[trajectory_id]
         if trajectory.num_frames < 2:
-            raise FignetError(f"trajectory {trajectory_id!r} has fewer than the 2 frames a rollout starts from")
+            raise FignetError(
+                f"trajectory {trajectory_id!r} has fewer than the 2 frames a rollout starts from"
+            )
         if state == "velocity" and not trajectory.has_velocities:
-            raise FignetError("the 'velocity' state needs recorded velocities; this file has none (format version 1)")
+            raise FignetError(
+                "the 'velocity' state needs recorded velocities; this file has none (format version 1)"
+            )
         missing = sorted({str(n) for n in trajectory.mesh_names[1:]} - set(self.asset_index))
         if missing:
             raise FignetError(f"no asset given for the shapes {', '.join(missing)}")
@@ -273,7 +299,9 @@ def evaluate_ceilings(
     shortest = min(data.trajectories[key].num_frames for key in ids)
     horizons = horizon_steps(data.dt, shortest) if horizons is None else sorted({int(h) for h in horizons})
     if not horizons or horizons[0] < 1 or horizons[-1] > shortest - 2:
-        raise FignetError(f"horizons must lie in 1..{shortest - 2} steps for these trajectories, got {horizons}")
+        raise FignetError(
+            f"horizons must lie in 1..{shortest - 2} steps for these trajectories, got {horizons}"
+        )
     with RestartedPyBullet(data, assets, keep_world) as physics:
         errors = {state: collect_errors(physics, ids, state, horizons) for state in states}
     return {
@@ -282,7 +310,9 @@ def evaluate_ceilings(
         "dt": float(data.dt),
         "horizons": horizons,
         "keep_world": bool(keep_world),
-        "states": {state: [_horizon_row(h, data.dt, *errors[state][h]) for h in horizons] for state in states},
+        "states": {
+            state: [_horizon_row(h, data.dt, *errors[state][h]) for h in horizons] for state in states
+        },
     }
 
 

@@ -31,10 +31,14 @@ def read_guarded(reader, path, *args):
     timeout = BASE_TIMEOUT_S + TIMEOUT_S_PER_MB * path.stat().st_size / 1e6
     try:
         if not receiving.poll(timeout):
-            raise FormatError(f"{path}: not a readable HDF5 file (the HDF5 library hung reading it; the file is damaged)")
+            raise FormatError(
+                f"{path}: not a readable HDF5 file (the HDF5 library hung reading it; the file is damaged)"
+            )
         status, value = receiving.recv()
     except EOFError:
-        raise FormatError(f"{path}: not a readable HDF5 file (the HDF5 library crashed reading it; the file is damaged)") from None
+        raise FormatError(
+            f"{path}: not a readable HDF5 file (the HDF5 library crashed reading it; the file is damaged)"
+        ) from None
     finally:
         receiving.close()
         if child.is_alive():
@@ -54,6 +58,9 @@ def _run_child(sending, reader, path, args):
     except FormatError as error:
         result = ("error", str(error))
     except BaseException as error:  # reported in the parent; never a traceback from the child
-        result = ("error", f"{path}: not readable ({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})")
+        result = (
+            "error",
+            f"{path}: not readable ({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})",
+        )
     sending.send(result)
     sending.close()

@@ -27,10 +27,14 @@ class Mp4Writer:
         except ImportError:
             raise FignetError("writing videos needs PyAV: pip install av") from None
         if not (np.isfinite(fps) and fps > 0) or width < 1 or height < 1:
-            raise FignetError(f"{path}: cannot write a video of {width}x{height} pixels at {fps} frames per second")
+            raise FignetError(
+                f"{path}: cannot write a video of {width}x{height} pixels at {fps} frames per second"
+            )
         self.path, self.size = path, (int(width), int(height))
         self._container = av.open(str(path), "w", format="mp4")
-        self._stream = self._container.add_stream(CODEC, rate=fractions.Fraction(float(fps)).limit_denominator(1001))
+        self._stream = self._container.add_stream(
+            CODEC, rate=fractions.Fraction(float(fps)).limit_denominator(1001)
+        )
         self._stream.width, self._stream.height = (int(width) + 1) // 2 * 2, (int(height) + 1) // 2 * 2
         self._stream.pix_fmt = "yuv420p"
         self._stream.options = {"crf": str(QUALITY_CRF)}
@@ -41,9 +45,13 @@ class Mp4Writer:
         """Append one (H, W, 3) uint8 RGB frame of the writer's size."""
         rgb = np.asarray(rgb)
         if rgb.shape != (self.size[1], self.size[0], 3) or rgb.dtype != np.uint8:
-            raise ValueError(f"a frame must be ({self.size[1]}, {self.size[0]}, 3) uint8, not {rgb.shape} {rgb.dtype}")
+            raise ValueError(
+                f"a frame must be ({self.size[1]}, {self.size[0]}, 3) uint8, not {rgb.shape} {rgb.dtype}"
+            )
         padding = ((0, self._stream.height - rgb.shape[0]), (0, self._stream.width - rgb.shape[1]), (0, 0))
-        frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(np.pad(rgb, padding, mode="edge")), format="rgb24")
+        frame = self._av.VideoFrame.from_ndarray(
+            np.ascontiguousarray(np.pad(rgb, padding, mode="edge")), format="rgb24"
+        )
         self._mux(self._stream.encode(frame))
         self.frames += 1
 
@@ -75,5 +83,10 @@ def read_video_info(path) -> dict:
     with av.open(str(path)) as container:
         stream = container.streams.video[0]
         frames = stream.frames or sum(1 for _ in container.decode(stream))
-        return {"codec": stream.codec_context.name, "width": stream.codec_context.width,
-                "height": stream.codec_context.height, "frames": int(frames), "fps": float(stream.average_rate or 0)}
+        return {
+            "codec": stream.codec_context.name,
+            "width": stream.codec_context.width,
+            "height": stream.codec_context.height,
+            "frames": int(frames),
+            "fps": float(stream.average_rate or 0),
+        }

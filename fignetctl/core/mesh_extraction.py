@@ -94,10 +94,14 @@ def robust_box(points, trim_percent=2.0):
     farther from the median than 4 times their median distance to it."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if len(points) < 4:
-        raise FignetError(f"the masks give {len(points)} 3D points; an object needs more (a bigger mask or a depth at the prompt)")
+        raise FignetError(
+            f"the masks give {len(points)} 3D points; an object needs more (a bigger mask or a depth at the prompt)"
+        )
     distance = np.linalg.norm(points - np.median(points, axis=0), axis=1)
     kept = points[distance <= 4.0 * max(np.median(distance), 1e-12)]
-    return np.stack([np.percentile(kept, trim_percent, axis=0), np.percentile(kept, 100 - trim_percent, axis=0)])
+    return np.stack(
+        [np.percentile(kept, trim_percent, axis=0), np.percentile(kept, 100 - trim_percent, axis=0)]
+    )
 
 
 def check_views_agree(boxes, names):
@@ -141,7 +145,12 @@ def sample_density(density, axes, chunk=262144):
     """σ on the grid of `axes` (3 arrays) -> (X, Y, Z) float32, by calling density in chunks."""
     shape = tuple(len(a) for a in axes)
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    values = np.concatenate([np.asarray(density(points[i : i + chunk]), np.float32).reshape(-1) for i in range(0, len(points), chunk)])
+    values = np.concatenate(
+        [
+            np.asarray(density(points[i : i + chunk]), np.float32).reshape(-1)
+            for i in range(0, len(points), chunk)
+        ]
+    )
     values = np.nan_to_num(values, nan=0.0, posinf=np.float32(1e30), neginf=0.0)
     return values.reshape(shape)
 
@@ -165,7 +174,11 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     points = np.concatenate([np.repeat(ring, len(z), axis=0), np.tile(z, len(ring))[:, None]], axis=1)
     values = np.nan_to_num(np.asarray(density(points), np.float64).reshape(len(ring), len(z)))
     peaks = values.max(axis=1)
-    heights = [z[np.nonzero(column >= 0.9 * peak)[0].max()] for column, peak in zip(values, peaks) if peak > 0.1 * threshold]
+    heights = [
+        z[np.nonzero(column >= 0.9 * peak)[0].max()]
+        for column, peak in zip(values, peaks)
+        if peak > 0.1 * threshold
+    ]
     if len(heights) < len(ring) // 3:
         return None
     return float(np.median(heights))
@@ -218,7 +231,9 @@ def signed_volume(vertices, faces):
     """Signed volume of a closed triangle mesh (positive when faces are counter-clockwise
     seen from outside). vertices : (V, 3); faces : (F, 3)."""
     triangles = np.asarray(vertices, np.float64)[np.asarray(faces)]
-    return float(np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])).sum() / 6.0)
+    return float(
+        np.einsum("ij,ij->i", triangles[:, 0], np.cross(triangles[:, 1], triangles[:, 2])).sum() / 6.0
+    )
 
 
 def keep_large_components(vertices, faces, keep_fraction=0.1):
@@ -297,7 +312,9 @@ def object_box_from_points(points_per_view, names, settings: ExtractionSettings)
     check_views_agree(boxes, names)
     box = padded_box(robust_box(np.concatenate(points_per_view), settings.trim_percent), settings.padding)
     if not np.all(np.isfinite(box)) or not (box[1] - box[0]).max() > 0:
-        raise FignetError("the masks' 3D points all coincide (a box of size 0); give masks that cover the object")
+        raise FignetError(
+            "the masks' 3D points all coincide (a box of size 0); give masks that cover the object"
+        )
     return box
 
 
@@ -305,7 +322,14 @@ def cut_at_support(density, box, settings: ExtractionSettings):
     """(lower, upper, support z or None): `box` starting just above the support found under it."""
     lower, upper = np.array(box[0], np.float64), np.array(box[1], np.float64)
     _, voxel = grid_axes(lower, upper, settings.resolution)
-    support = support_height(density, lower, upper, settings.threshold, settings.resolution, settings.passive_below + (upper - lower)[2])
+    support = support_height(
+        density,
+        lower,
+        upper,
+        settings.threshold,
+        settings.resolution,
+        settings.passive_below + (upper - lower)[2],
+    )
     if support is not None and support + settings.support_clearance_voxels * voxel < upper[2]:
         # The masks see the object from above: its bottom is hidden, so V_o reaches down to the
         # support (and no lower, or the support's surface would join the object).
@@ -328,7 +352,9 @@ def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
             raise
         environment = None  # only a faint support, which the plane below stands for
     tolerance = 2 * max(voxel, grid_axes(passive_lower, passive_upper, settings.resolution)[1])
-    environment = with_support_plane(environment, lower, upper, passive_lower, passive_upper, support, tolerance)
+    environment = with_support_plane(
+        environment, lower, upper, passive_lower, passive_upper, support, tolerance
+    )
     origin = np.asarray(obj.center_mass if obj.is_watertight else obj.bounds.mean(axis=0), np.float64)
     return Extraction(obj, environment, lower, upper, origin, passive_lower, passive_upper, support)
 
@@ -348,14 +374,22 @@ def with_support_plane(environment, lower, upper, passive_lower, passive_upper, 
     if support is None:
         return environment
     if environment is not None:
-        ring = _footprint_ring(0.5 * (lower[:2] + passive_lower[:2]), 0.5 * (upper[:2] + passive_upper[:2]), 8)
+        ring = _footprint_ring(
+            0.5 * (lower[:2] + passive_lower[:2]), 0.5 * (upper[:2] + passive_upper[:2]), 8
+        )
         origins = np.column_stack([ring, np.full(len(ring), upper[2] + 1.0)])
-        hits, rays, _ = environment.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)))
+        hits, rays, _ = environment.ray.intersects_location(
+            origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+        )
         near = np.abs(hits[:, 2] - support) <= tolerance
         if len(np.unique(rays[near])) >= 0.5 * len(origins):
             return environment
     (x0, y0), (x1, y1) = passive_lower[:2], passive_upper[:2]
-    plane = trimesh.Trimesh([[x0, y0, support], [x1, y0, support], [x1, y1, support], [x0, y1, support]], [[0, 1, 2], [0, 2, 3]], process=False)
+    plane = trimesh.Trimesh(
+        [[x0, y0, support], [x1, y0, support], [x1, y1, support], [x0, y1, support]],
+        [[0, 1, 2], [0, 2, 3]],
+        process=False,
+    )
     return plane if environment is None else trimesh.util.concatenate([environment, plane])
 
 
@@ -404,7 +438,9 @@ def view_masks(views, segmentation_settings=None):
         height, width = view.depth.shape
         mask = np.zeros((height, width), bool)
         for u, v in view.prompts:
-            check_prompt(u, v, width, height, view.depth, view.opacity, settings, where=f"prompt {view.name}:{u},{v}")
+            check_prompt(
+                u, v, width, height, view.depth, view.opacity, settings, where=f"prompt {view.name}:{u},{v}"
+            )
             mask |= prompt_mask(view.image, view.depth, view.K, u, v, settings, view.pixel_offset)
         view.mask = mask
     return views
@@ -456,7 +492,9 @@ def hull_box(density, box, views, settings: ExtractionSettings, occupancy=None):
 
     if settings.hull_resolution <= 0 or len(views) < 2:
         return box
-    axes, voxel, points, occupied = occupancy if occupancy is not None else occupancy_grid(density, box, settings)
+    axes, voxel, points, occupied = (
+        occupancy if occupancy is not None else occupancy_grid(density, box, settings)
+    )
     inside = occupied.reshape(-1) & _inside_every_mask(points, views, settings)
     inside = inside.reshape(occupied.shape)
     labels, count = ndimage.label(inside)
@@ -468,7 +506,9 @@ def hull_box(density, box, views, settings: ExtractionSettings, occupancy=None):
     lower = np.array([axes[i][cells[:, i].min()] for i in range(3)]) - voxel
     upper = np.array([axes[i][cells[:, i].max()] for i in range(3)]) + voxel
     hull = padded_box(np.stack([lower, upper]), settings.padding)
-    return np.stack([np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])])  # the hull only ever shrinks V_o
+    return np.stack(
+        [np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])]
+    )  # the hull only ever shrinks V_o
 
 
 HOLE_FRACTION = 0.02
@@ -506,7 +546,9 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
         ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
         labels[cv2.dilate(splat.astype(np.uint8), ring).astype(bool)] = cv2.GC_PR_BGD
         labels[splat] = cv2.GC_PR_FGD
-        labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = cv2.GC_FGD
+        labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = (
+            cv2.GC_FGD
+        )
         if not (labels == cv2.GC_FGD).any():
             continue
         view.mask = fill_holes(grabcut(view.image, labels, 5), HOLE_FRACTION)
@@ -572,8 +614,11 @@ def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettin
         with atomic_path(out_dir / name) as tmp:
             mesh.export(tmp, file_type="obj", include_normals=False, include_texture=False)
     volume = Volume(
-        lower=extraction.lower, upper=extraction.upper, origin=extraction.origin,
-        passive_lower=extraction.passive_lower, passive_upper=extraction.passive_upper,
+        lower=extraction.lower,
+        upper=extraction.upper,
+        origin=extraction.origin,
+        passive_lower=extraction.passive_lower,
+        passive_upper=extraction.passive_upper,
         settings={**settings.to_dict(), **(extra_settings or {}), "support_z": extraction.support_z},
     )
     write_volume(out_dir / "volume.npz", volume)
@@ -604,6 +649,8 @@ def _check_obj_geometry(mesh, path) -> None:
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise FignetError(f"{path}: a face refers to a vertex that does not exist")
     corners = vertices[faces]
-    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    areas = 0.5 * np.linalg.norm(
+        np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
+    )
     if not np.any(areas > 0):
         raise FignetError(f"{path}: every triangle has zero area")

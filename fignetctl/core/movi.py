@@ -277,8 +277,12 @@ def prepare_asset(shape: Shape, folder) -> PreparedAsset:
     volume, inertia = mass_properties(shape.vertices, shape.faces, parts)
     moments, quaternion = principal_frame(inertia)
     return PreparedAsset(
-        shape=shape, hull_vertices=hull_vertices(shape.vertices), collision_file=str(collision_file),
-        volume=volume, principal_moments=moments, principal_quaternion=quaternion,
+        shape=shape,
+        hull_vertices=hull_vertices(shape.vertices),
+        collision_file=str(collision_file),
+        volume=volume,
+        principal_moments=moments,
+        principal_quaternion=quaternion,
     )
 
 
@@ -401,7 +405,9 @@ def sample_objects(rng, largest_sides, config: MoviConfig) -> list:
 def rotated_box(bounds, quaternion) -> tuple:
     """World-axis extent (low (3,), high (3,)) of a box `bounds` (2, 3) turned by `quaternion`
     (w x y z) about the origin: Kubric's `aabbox` of a rotated object at the origin."""
-    corners = np.array([[bounds[i, 0], bounds[j, 1], bounds[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    corners = np.array(
+        [[bounds[i, 0], bounds[j, 1], bounds[k, 2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+    )
     turned = corners @ quat_to_matrix(quaternion).T
     return turned.min(axis=0), turned.max(axis=0)
 
@@ -488,7 +494,9 @@ class MoviSimulator:
         self._reset_world()
         return [self._add_floor()] + [self._add_object(spec) for spec in specs]
 
-    def set_object_states(self, bodies, specs, positions, quaternions, velocities, angular_velocities) -> None:
+    def set_object_states(
+        self, bodies, specs, positions, quaternions, velocities, angular_velocities
+    ) -> None:
         """Put each spec's body (bodies[1:], the floor stays) in an object-frame state.
 
         positions : (N, 3) centre of mass, quaternions : (N, 4) w x y z object-to-world,
@@ -553,8 +561,12 @@ class MoviSimulator:
         p.setTimeStep(1.0 / self.config.physics_hz, physicsClientId=client)
         # Kubric's settings against "sticky walls" (bullet3 issue 3094).
         p.setPhysicsEngineParameter(
-            restitutionVelocityThreshold=0.0, warmStartingFactor=0.0, useSplitImpulse=True,
-            contactSlop=0.0, enableConeFriction=False, deterministicOverlappingPairs=True,
+            restitutionVelocityThreshold=0.0,
+            warmStartingFactor=0.0,
+            useSplitImpulse=True,
+            contactSlop=0.0,
+            enableConeFriction=False,
+            deterministicOverlappingPairs=True,
             physicsClientId=client,
         )
 
@@ -563,11 +575,19 @@ class MoviSimulator:
         half_extents = list(config.floor_half_extents)
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_extents, physicsClientId=self.client)
         body = p.createMultiBody(
-            0.0, shape, basePosition=_floor_position(config), useMaximalCoordinates=True, physicsClientId=self.client
+            0.0,
+            shape,
+            basePosition=_floor_position(config),
+            useMaximalCoordinates=True,
+            physicsClientId=self.client,
         )
         p.changeDynamics(
-            body, -1, lateralFriction=config.floor_friction, restitution=config.floor_restitution,
-            contactProcessingThreshold=0.0, physicsClientId=self.client,
+            body,
+            -1,
+            lateralFriction=config.floor_friction,
+            restitution=config.floor_restitution,
+            contactProcessingThreshold=0.0,
+            physicsClientId=self.client,
         )
         return body
 
@@ -576,19 +596,30 @@ class MoviSimulator:
         p, asset = self.pybullet, self.asset(spec.asset)
         mass, moments = object_mass_properties(asset, spec)
         shape = p.createCollisionShape(
-            p.GEOM_MESH, fileName=asset.collision_file, meshScale=[spec.scale] * 3, physicsClientId=self.client
+            p.GEOM_MESH,
+            fileName=asset.collision_file,
+            meshScale=[spec.scale] * 3,
+            physicsClientId=self.client,
         )
         body = p.createMultiBody(
-            mass, shape, basePosition=[0.0, 0.0, -1000.0],
+            mass,
+            shape,
+            basePosition=[0.0, 0.0, -1000.0],
             baseInertialFramePosition=[0.0, 0.0, 0.0],
             baseInertialFrameOrientation=quat_wxyz_to_xyzw(asset.principal_quaternion).tolist(),
-            useMaximalCoordinates=True, physicsClientId=self.client,
+            useMaximalCoordinates=True,
+            physicsClientId=self.client,
         )
         # PyBullet 3.2.7 zeroes the mass when localInertiaDiagonal comes without it.
         p.changeDynamics(
-            body, -1, mass=mass, localInertiaDiagonal=moments.tolist(),
-            lateralFriction=spec.material.friction, restitution=spec.material.restitution,
-            contactProcessingThreshold=0.0, physicsClientId=self.client,
+            body,
+            -1,
+            mass=mass,
+            localInertiaDiagonal=moments.tolist(),
+            lateralFriction=spec.material.friction,
+            restitution=spec.material.restitution,
+            contactProcessingThreshold=0.0,
+            physicsClientId=self.client,
         )
         return body
 
@@ -630,8 +661,10 @@ class MoviSimulator:
         principal = [np.array([1.0, 0, 0, 0])] + [self.asset(s.asset).principal_quaternion for s in specs]
         quaternions = object_quaternions(quat_xyzw_to_wxyz(states[..., 3:7]), np.stack(principal))
         return SimulationRecord(
-            positions=states[..., :3], quaternions=quaternions,
-            velocities=states[..., 7:10], angular_velocities=states[..., 10:13],
+            positions=states[..., :3],
+            quaternions=quaternions,
+            velocities=states[..., 7:10],
+            angular_velocities=states[..., 10:13],
             min_pair_distance=min_pair_distance,
         )
 
@@ -672,7 +705,9 @@ class MoviSimulator:
             static=np.array([True] + [False] * len(specs)),
             mass=np.array([0.0] + [mass for mass, _ in properties], np.float32),
             friction=np.array([config.floor_friction] + [s.material.friction for s in specs], np.float32),
-            restitution=np.array([config.floor_restitution] + [s.material.restitution for s in specs], np.float32),
+            restitution=np.array(
+                [config.floor_restitution] + [s.material.restitution for s in specs], np.float32
+            ),
             velocities=record.velocities.astype(np.float32),
             angular_velocities=record.angular_velocities.astype(np.float32),
             extras=_physical_extras(record, np.stack(inertia)),
@@ -825,7 +860,9 @@ def dataset_stats(results: list, seconds: float, jobs: int) -> dict:
     }
 
 
-def dataset_file(results: list, assets, config: MoviConfig, num_trajectories: int, attrs: dict) -> TrajectoryFile:
+def dataset_file(
+    results: list, assets, config: MoviConfig, num_trajectories: int, attrs: dict
+) -> TrajectoryFile:
     """The kept trajectories as a TrajectoryFile holding the floor and the shapes they use.
 
     Raises FignetError when no trajectory was kept.
@@ -837,11 +874,16 @@ def dataset_file(results: list, assets, config: MoviConfig, num_trajectories: in
     meshes = {FLOOR_NAME: floor_mesh(config)}
     for asset in assets:
         if str(asset.name) in used:
-            meshes[str(asset.name)] = Mesh(np.asarray(asset.vertices, np.float32), np.asarray(asset.faces, np.int32))
+            meshes[str(asset.name)] = Mesh(
+                np.asarray(asset.vertices, np.float32), np.asarray(asset.faces, np.int32)
+            )
     trajectories = {trajectory_id(r.index, num_trajectories): r.trajectory for r in kept}
     return TrajectoryFile(
-        dt=config.dt, gravity=np.asarray(config.gravity, np.float64),
-        meshes=meshes, trajectories=trajectories, attrs=dict(attrs),
+        dt=config.dt,
+        gravity=np.asarray(config.gravity, np.float64),
+        meshes=meshes,
+        trajectories=trajectories,
+        attrs=dict(attrs),
     )
 
 

@@ -13,7 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.mesh_extraction import (
-    ExtractionSettings, View, consistent_box, extract_object, view_masks, write_extraction,
+    ExtractionSettings,
+    View,
+    consistent_box,
+    extract_object,
+    view_masks,
+    write_extraction,
 )
 from fignetctl.errors import FignetError, FormatError
 
@@ -35,7 +40,9 @@ class ExtractionInputs:
     depth: str | None = None  # depth.npz instead of NeRF depth
 
 
-def run_extraction(inputs: ExtractionInputs, out_dir, settings: ExtractionSettings, segmentation=None, device="cpu") -> dict:
+def run_extraction(
+    inputs: ExtractionInputs, out_dir, settings: ExtractionSettings, segmentation=None, device="cpu"
+) -> dict:
     """Extract and write; returns a summary (faces, sizes, seconds, per-view mask pixels)."""
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.nerf.io import load_nerf
@@ -75,7 +82,11 @@ def _masked_views(inputs, cameras, model, segmentation):
         masks = read_user_masks(inputs.masks_dir, cameras)
         prompts = {index: [] for index in masks}
     else:
-        prompts = parse_prompts(inputs.prompt_texts, cameras) if inputs.prompt_texts else read_prompts_json(inputs.prompts_json, cameras, inputs.object_name)
+        prompts = (
+            parse_prompts(inputs.prompt_texts, cameras)
+            if inputs.prompt_texts
+            else read_prompts_json(inputs.prompts_json, cameras, inputs.object_name)
+        )
         masks = {}
         if len(prompts) < 2:
             raise FignetError(f"prompts are in {len(prompts)} view; give prompts in at least 2 views")
@@ -91,7 +102,9 @@ def _view(index, cameras, model, depth_images, image_dir, need_image):
     name = str(cameras.image_names[index])
     image = _read_image(image_dir / name, cameras) if need_image else None
     if depth_images is not None:
-        return View(name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image, pixel_offset=0.5)
+        return View(
+            name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image, pixel_offset=0.5
+        )
     rendering = model.render(cameras, index)
     depth = np.where(rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0)
     return View(name, cameras.K[index], cameras.c2w[index], depth, rendering.opacity, image)
@@ -122,7 +135,9 @@ def _read_image(path, cameras):
     if image is None:
         raise FormatError(f"{path}: not a readable image (is --images right?)")
     if image.shape[:2] != (cameras.height, cameras.width):
-        raise FormatError(f"{path}: is {image.shape[1]}x{image.shape[0]} but the cameras are {cameras.width}x{cameras.height}")
+        raise FormatError(
+            f"{path}: is {image.shape[1]}x{image.shape[0]} but the cameras are {cameras.width}x{cameras.height}"
+        )
     return np.ascontiguousarray(image[..., ::-1])
 
 
@@ -133,7 +148,9 @@ def _read_depth(path, cameras):
     except (OSError, ValueError, KeyError, EOFError) as error:
         raise FormatError(f"{path}: not a depth.npz with a 'depth' array ({type(error).__name__})") from None
     if depth.shape != (len(cameras), cameras.height, cameras.width):
-        raise FormatError(f"{path}: depth has shape {depth.shape}, expected {(len(cameras), cameras.height, cameras.width)}")
+        raise FormatError(
+            f"{path}: depth has shape {depth.shape}, expected {(len(cameras), cameras.height, cameras.width)}"
+        )
     return depth
 
 
@@ -163,7 +180,9 @@ def parse_prompts(texts, cameras) -> dict:
         if not view:
             raise FignetError(f"--prompt {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)")
         if not (0 <= u < cameras.width and 0 <= v < cameras.height):
-            raise FignetError(f"--prompt {text!r}: pixel {u},{v} is outside the {cameras.width}x{cameras.height} image")
+            raise FignetError(
+                f"--prompt {text!r}: pixel {u},{v} is outside the {cameras.width}x{cameras.height} image"
+            )
         prompts.setdefault(view_index(view, cameras), []).append((u, v))
     return prompts
 
@@ -184,7 +203,16 @@ def read_prompts_json(path, cameras, object_name=None) -> dict:
         texts = [f"{p['image']}:{int(p['u'])},{int(p['v'])}" for p in points]
     except FileNotFoundError:
         raise FormatError(f"{path}: no such file") from None
-    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError, OverflowError, RecursionError) as error:
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        TypeError,
+        IndexError,
+        AttributeError,
+        OverflowError,
+        RecursionError,
+    ) as error:
         raise FormatError(f"{path}: not a usable prompts.json ({type(error).__name__}: {error})") from None
     return parse_prompts(texts, cameras)
 
@@ -206,7 +234,9 @@ def read_user_masks(folder, cameras) -> dict:
             raise FormatError(f"{path}: not a {cameras.width}x{cameras.height} mask image")
         masks[index] = mask > 0
     if len(masks) < 2:
-        raise FignetError(f"{folder}: masks for {len(masks)} of the views (named <image stem>.png); give at least 2")
+        raise FignetError(
+            f"{folder}: masks for {len(masks)} of the views (named <image stem>.png); give at least 2"
+        )
     return masks
 
 

@@ -83,12 +83,16 @@ def choose_object(trajectory, object_name=None) -> int:
             raise FignetError(f"no object {object_name!r} in the rollout (it has {', '.join(names)})")
         index = names.index(object_name)
         if trajectory.static[index]:
-            raise FignetError(f"object {object_name!r} is static in the rollout; choose a moving one with --object")
+            raise FignetError(
+                f"object {object_name!r} is static in the rollout; choose a moving one with --object"
+            )
         return index
     dynamic = [i for i in range(len(names)) if not trajectory.static[i]]
     if len(dynamic) != 1:
         listed = ", ".join(names[i] for i in dynamic) or "none"
-        raise FignetError(f"the rollout has {len(dynamic)} dynamic objects ({listed}); choose one with --object")
+        raise FignetError(
+            f"the rollout has {len(dynamic)} dynamic objects ({listed}); choose one with --object"
+        )
     return dynamic[0]
 
 
@@ -129,7 +133,9 @@ def check_object_fits_volume(object_vertices, name: str, volume: Volume) -> None
 
 def box_corners(lower, upper) -> np.ndarray:
     """(8, 3) corners of an axis-aligned box."""
-    return np.array([[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])])
+    return np.array(
+        [[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])]
+    )
 
 
 def rays_hit_box(origins, directions, lower, upper) -> np.ndarray:
@@ -165,7 +171,11 @@ def make_warp(motion: ObjectMotion, t: int, volume: Volume, mode: str, device="c
     import torch
 
     as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
-    rotation, position, origin = as_tensor(motion.rotations[t]), as_tensor(motion.positions[t]), as_tensor(motion.origin)
+    rotation, position, origin = (
+        as_tensor(motion.rotations[t]),
+        as_tensor(motion.positions[t]),
+        as_tensor(motion.origin),
+    )
     lower, upper = as_tensor(volume.lower), as_tensor(volume.upper)
     inside = lambda p: ((p >= lower) & (p <= upper)).all(dim=-1, keepdim=True)  # noqa: E731
     empty = torch.full((3,), EMPTY_COORDINATE, device=device)  # outside any scene box: no density there
@@ -173,12 +183,20 @@ def make_warp(motion: ObjectMotion, t: int, volume: Volume, mode: str, device="c
     def warp(points, directions):
         rest = (points - position) @ rotation + origin  # R_t⁻¹·x
         in_moved = inside(rest)
-        bent, turned = torch.where(in_moved, rest, points), torch.where(in_moved, directions @ rotation, directions)
+        bent, turned = (
+            torch.where(in_moved, rest, points),
+            torch.where(in_moved, directions @ rotation, directions),
+        )
         if mode == "move":
             in_old = inside(points) & ~in_moved
             forward = (points - origin) @ rotation.T + position  # R_t·x
-            bent, turned = torch.where(in_old, forward, bent), torch.where(in_old, directions @ rotation.T, turned)
-            bent = torch.where(~in_moved & inside(bent), empty, bent)  # the object's rest box, read off its moved box
+            bent, turned = (
+                torch.where(in_old, forward, bent),
+                torch.where(in_old, directions @ rotation.T, turned),
+            )
+            bent = torch.where(
+                ~in_moved & inside(bent), empty, bent
+            )  # the object's rest box, read off its moved box
         return bent, turned
 
     return warp
@@ -206,11 +224,26 @@ def render_rays(model, origins, directions, warp=None, box=None, chunk: int = 16
         for o, d in zip(o_all.split(chunk), d_all.split(chunk)):
             samples = sample_along_rays(o, d, low, high, model.step_length)
             bend = None if warp is None else _point_warp(warp, d, samples.valid)
-            rgb, depth, opacity, _ = render_samples(model.field, model.occupancy, samples, d, model.background, bend, model.config.weight_threshold)
+            rgb, depth, opacity, _ = render_samples(
+                model.field,
+                model.occupancy,
+                samples,
+                d,
+                model.background,
+                bend,
+                model.config.weight_threshold,
+            )
             parts.append((rgb.clamp(0, 1), depth, opacity))
     if not parts:
-        return {"rgb": np.zeros((0, 3), np.float32), "depth": np.zeros(0, np.float32), "opacity": np.zeros(0, np.float32)}
-    return {key: torch.cat([p[i] for p in parts]).float().cpu().numpy() for i, key in enumerate(("rgb", "depth", "opacity"))}
+        return {
+            "rgb": np.zeros((0, 3), np.float32),
+            "depth": np.zeros(0, np.float32),
+            "opacity": np.zeros(0, np.float32),
+        }
+    return {
+        key: torch.cat([p[i] for p in parts]).float().cpu().numpy()
+        for i, key in enumerate(("rgb", "depth", "opacity"))
+    }
 
 
 def _point_warp(warp, directions, valid):
@@ -275,7 +308,13 @@ class Rerenderer:
             for key in images:
                 images[key][bent] = out[key]
         shape = lambda a, *rest: a.reshape(height, width, *rest)  # noqa: E731
-        return Frame(shape(images["rgb"], 3), shape(images["depth"]), shape(images["opacity"]), shape(bent), time.perf_counter() - started)
+        return Frame(
+            shape(images["rgb"], 3),
+            shape(images["depth"]),
+            shape(images["opacity"]),
+            shape(bent),
+            time.perf_counter() - started,
+        )
 
 
 def _camera_rays(camera):
@@ -288,19 +327,42 @@ def _camera_rays(camera):
 
 def _camera_key(camera):
     K, c2w, width, height = camera
-    return (np.asarray(K, np.float64).tobytes(), np.asarray(c2w, np.float64).tobytes(), int(width), int(height))
+    return (
+        np.asarray(K, np.float64).tobytes(),
+        np.asarray(c2w, np.float64).tobytes(),
+        int(width),
+        int(height),
+    )
 
 
 # ----------------------------------------------------------------------------- cameras
 
 
-def orbit_cameras(centre, radius: float, elevation_deg: float, count: int, K, width: int, height: int, azimuth_deg: float = 0.0) -> list:
+def orbit_cameras(
+    centre,
+    radius: float,
+    elevation_deg: float,
+    count: int,
+    K,
+    width: int,
+    height: int,
+    azimuth_deg: float = 0.0,
+) -> list:
     """`count` cameras (K, c2w, width, height) on a circle around `centre`, one turn, looking at it."""
     elevation = np.radians(elevation_deg)
     cameras = []
     for azimuth in np.radians(azimuth_deg) + 2 * np.pi * np.arange(count) / max(count, 1):
-        offset = radius * np.array([np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)])
-        cameras.append((np.asarray(K, np.float64), look_at_c2w(np.asarray(centre) + offset, centre), int(width), int(height)))
+        offset = radius * np.array(
+            [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)]
+        )
+        cameras.append(
+            (
+                np.asarray(K, np.float64),
+                look_at_c2w(np.asarray(centre) + offset, centre),
+                int(width),
+                int(height),
+            )
+        )
     return cameras
 
 
@@ -330,7 +392,9 @@ def draw_trace(image, camera, positions, colour=(255, 210, 0)):
     if len(points) > 1:
         cv2.polylines(image, [points.reshape(-1, 1, 2)], False, colour, thickness, cv2.LINE_AA, shift=4)
     if len(points) and front[-1]:
-        cv2.circle(image, tuple(int(v) for v in points[-1]), 16 * (thickness + 2), colour, -1, cv2.LINE_AA, shift=4)
+        cv2.circle(
+            image, tuple(int(v) for v in points[-1]), 16 * (thickness + 2), colour, -1, cv2.LINE_AA, shift=4
+        )
     return image
 
 
@@ -374,7 +438,9 @@ class _RerunLog:
         self.rec.save(path)
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         path_points = np.asarray(motion.positions[list(steps)], np.float32)
-        self.rec.log("world/trace", rr.LineStrips3D([path_points], colors=[(255, 210, 0)], radii=0.005), static=True)
+        self.rec.log(
+            "world/trace", rr.LineStrips3D([path_points], colors=[(255, 210, 0)], radii=0.005), static=True
+        )
         self.positions = motion.positions
 
     def log(self, index: int, step: int, camera, image) -> None:
@@ -383,7 +449,9 @@ class _RerunLog:
         rec.set_time("frame", sequence=index)
         rec.log("world/object", rr.Points3D([self.positions[step]], colors=[(255, 210, 0)], radii=0.02))
         rec.log("world/camera", rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]))
-        rec.log("world/camera", rr.Pinhole(image_from_camera=np.asarray(K), width=int(width), height=int(height)))
+        rec.log(
+            "world/camera", rr.Pinhole(image_from_camera=np.asarray(K), width=int(width), height=int(height))
+        )
         rec.log("world/camera/image", rr.Image(image))
 
     def close(self) -> None:
@@ -391,7 +459,17 @@ class _RerunLog:
         self.rec.disconnect()
 
 
-def write_rerender(renderer: Rerenderer, cameras, steps, frames_dir, video_path, fps: float, trace=False, rerun_path=None, progress=None) -> dict:
+def write_rerender(
+    renderer: Rerenderer,
+    cameras,
+    steps,
+    frames_dir,
+    video_path,
+    fps: float,
+    trace=False,
+    rerun_path=None,
+    progress=None,
+) -> dict:
     """Render `steps` (one camera (K, c2w, width, height) per step in `cameras`) to
     frames_dir/frame_00000.png ... and an H.264 mp4 (media.py), both atomically; optionally a rerun
     recording. Returns timings: background_ms (unedited render, per camera), frame_ms (mean
@@ -410,14 +488,18 @@ def write_rerender(renderer: Rerenderer, cameras, steps, frames_dir, video_path,
         tmp_rrd = stack.enter_context(atomic_path(rerun_path, suffix=".rrd")) if rerun_path else None
         writer = stack.enter_context(Mp4Writer(tmp_video, float(fps), width, height))
         log = _RerunLog(tmp_rrd, renderer.motion, steps) if tmp_rrd else None
-        for index, (step, camera) in enumerate(progress(list(zip(steps, cameras))) if progress else zip(steps, cameras)):
+        for index, (step, camera) in enumerate(
+            progress(list(zip(steps, cameras))) if progress else zip(steps, cameras)
+        ):
             frame = renderer.render(camera, step)
             frame_seconds.append(frame.seconds)
             bent_fractions.append(float(frame.bent.mean()))
             image = to_uint8(frame.rgb)
             if trace:
                 draw_trace(image, camera, renderer.motion.positions[steps[: index + 1]])
-            if not cv2.imwrite(str(tmp_dir / f"frame_{index:05d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)):
+            if not cv2.imwrite(
+                str(tmp_dir / f"frame_{index:05d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+            ):
                 raise FignetError(f"{frames_dir}: OpenCV could not write a PNG")
             writer.write(image)
             if log:

@@ -44,7 +44,11 @@ def drop_history(origin, drop_height=0.1, delta_z=0.01, start=None, velocity=Non
     Default: start = origin raised by `drop_height`, and frame t-1 is Δz higher (a fall at
     Δz per frame). With `velocity` (3,) (world units / s): frame t-1 = start − velocity · dt.
     """
-    start = np.asarray(origin, np.float64) + [0.0, 0.0, drop_height] if start is None else np.asarray(start, np.float64)
+    start = (
+        np.asarray(origin, np.float64) + [0.0, 0.0, drop_height]
+        if start is None
+        else np.asarray(start, np.float64)
+    )
     step = np.array([0.0, 0.0, -delta_z]) if velocity is None else np.asarray(velocity, np.float64) * dt
     positions = np.stack([start - step, start])
     if not np.all(np.isfinite(positions)):
@@ -52,8 +56,18 @@ def drop_history(origin, drop_height=0.1, delta_z=0.01, start=None, velocity=Non
     return positions
 
 
-def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE, passive=PASSIVE, duplicate=False,
-                environment_origin=(0.0, 0.0, 0.0), dt=DT, gravity=GRAVITY) -> TrajectoryFile:
+def build_scene(
+    object_mesh,
+    environment_mesh,
+    origin,
+    positions,
+    active=ACTIVE,
+    passive=PASSIVE,
+    duplicate=False,
+    environment_origin=(0.0, 0.0, 0.0),
+    dt=DT,
+    gravity=GRAVITY,
+) -> TrajectoryFile:
     """The scene file.
 
     object_mesh : (vertices (V, 3) relative to the object's origin, faces (F, 3))
@@ -90,12 +104,24 @@ def build_scene(object_mesh, environment_mesh, origin, positions, active=ACTIVE,
         angular_velocities=np.zeros((2, count, 3), np.float32),
     )
     attrs = {"source": "fignetctl build-graph", "duplicate": bool(duplicate)}
-    return TrajectoryFile(dt=float(dt), gravity=np.asarray(gravity, np.float64), meshes=meshes, trajectories={"scene": trajectory}, attrs=attrs)
+    return TrajectoryFile(
+        dt=float(dt),
+        gravity=np.asarray(gravity, np.float64),
+        meshes=meshes,
+        trajectories={"scene": trajectory},
+        attrs=attrs,
+    )
 
 
 def _mesh(vertices, faces, name):
     vertices, faces = np.asarray(vertices, np.float32), np.asarray(faces, np.int32)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+    if (
+        vertices.ndim != 2
+        or vertices.shape[1] != 3
+        or faces.ndim != 2
+        or faces.shape[1] != 3
+        or len(faces) == 0
+    ):
         raise FignetError(f"the {name} mesh has no triangles")
     return Mesh(vertices, faces)
 
@@ -120,19 +146,32 @@ def drop_report(data, trajectory_id=None, rest_frames=10, rest_speed=0.02):
     static = np.asarray(trajectory.static, bool)
     dynamic = np.flatnonzero(~static)
     if len(dynamic) != 1 or not static.any():
-        raise FignetError(f"trajectory {key!r}: a drop has one moving object and a static environment "
-                          f"({len(dynamic)} moving, {int(static.sum())} static)")
+        raise FignetError(
+            f"trajectory {key!r}: a drop has one moving object and a static environment "
+            f"({len(dynamic)} moving, {int(static.sum())} static)"
+        )
     obj = int(dynamic[0])
     frames = trajectory.num_frames
     surfaces = []
     for o in np.flatnonzero(static):
         mesh = data.meshes[trajectory.mesh_names[o]]
-        world = transform_points(mesh.vertices, trajectory.scales[o], trajectory.positions[-1, o], trajectory.quaternions[-1, o])
+        world = transform_points(
+            mesh.vertices, trajectory.scales[o], trajectory.positions[-1, o], trajectory.quaternions[-1, o]
+        )
         surfaces.append(trimesh.Trimesh(world, mesh.faces, process=False))
     environment = trimesh.util.concatenate(surfaces)
     mesh = data.meshes[trajectory.mesh_names[obj]]
-    vertices = np.stack([transform_points(mesh.vertices, trajectory.scales[obj], trajectory.positions[t, obj], trajectory.quaternions[t, obj])
-                         for t in range(frames)])  # (T, V, 3)
+    vertices = np.stack(
+        [
+            transform_points(
+                mesh.vertices,
+                trajectory.scales[obj],
+                trajectory.positions[t, obj],
+                trajectory.quaternions[t, obj],
+            )
+            for t in range(frames)
+        ]
+    )  # (T, V, 3)
     top = environment.bounds[1][2] + 1.0
     points = vertices.reshape(-1, 3)
     origins = np.column_stack([points[:, :2], np.full(len(points), top)])

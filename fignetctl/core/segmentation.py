@@ -43,7 +43,9 @@ def check_prompt(u, v, width, height, depth, opacity=None, settings=Segmentation
     if not (0 <= u < width and 0 <= v < height):
         raise FignetError(f"{where}: pixel ({u}, {v}) is outside the {width}x{height} image")
     z = float(depth[v, u])
-    empty = not np.isfinite(z) or z <= 0 or (opacity is not None and float(opacity[v, u]) < settings.min_opacity)
+    empty = (
+        not np.isfinite(z) or z <= 0 or (opacity is not None and float(opacity[v, u]) < settings.min_opacity)
+    )
     if empty:
         raise FignetError(f"{where}: pixel ({u}, {v}) is on empty space (no density along its ray)")
 

@@ -73,7 +73,10 @@ PRESETS = {
     "default": SfmSettings(),
     # Measured on the bundled capture: registers 20 views 18° apart where "default" registers 4.
     "wide-baseline": SfmSettings(
-        domain_size_pooling=True, guided_matching=True, init_min_num_inliers=50, init_min_tri_angle=8.0,
+        domain_size_pooling=True,
+        guided_matching=True,
+        init_min_num_inliers=50,
+        init_min_tri_angle=8.0,
         abs_pose_min_num_inliers=15,
     ),
 }
@@ -135,8 +138,13 @@ def _extract_and_match(pycolmap, database, image_dir, names, settings: SfmSettin
     extraction.sift.peak_threshold = settings.peak_threshold
     extraction.sift.domain_size_pooling = settings.domain_size_pooling
     pycolmap.extract_features(
-        database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-        reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        database,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
     )
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = settings.num_threads
@@ -144,7 +152,9 @@ def _extract_and_match(pycolmap, database, image_dir, names, settings: SfmSettin
     if settings.resolved_matcher(len(names)) == "sequential":
         pairing = pycolmap.SequentialPairingOptions()
         pairing.overlap = settings.sequential_overlap
-        pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+        pycolmap.match_sequential(
+            database, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+        )
     else:
         pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
 
@@ -174,7 +184,9 @@ def run_sfm(image_dir, names: list[str] | None = None, settings: SfmSettings = S
     if names is None:
         names, _, _ = list_images(image_dir)
     matcher = settings.resolved_matcher(len(names))
-    log.info("structure from motion: %d images, %s matching, %s camera", len(names), matcher, settings.camera_model)
+    log.info(
+        "structure from motion: %d images, %s matching, %s camera", len(names), matcher, settings.camera_model
+    )
     with tempfile.TemporaryDirectory(prefix="fignetctl-sfm-") as workspace:
         workspace = Path(workspace)
         database = workspace / "database.db"
@@ -189,7 +201,10 @@ def run_sfm(image_dir, names: list[str] | None = None, settings: SfmSettings = S
         cameras = reconstruction_to_cameras(best, order=names)
     log.info(
         "registered %d/%d images; %d sparse points; mean reprojection error %.2f px",
-        registered, len(names), len(cameras.points), best.compute_mean_reprojection_error(),
+        registered,
+        len(names),
+        len(cameras.points),
+        best.compute_mean_reprojection_error(),
     )
     return cameras
 
@@ -200,7 +215,9 @@ def _check_registered(registered: int, total: int, matcher: str, settings: SfmSe
         if registered < total:
             log.warning("only %d of %d images registered; the others get no camera", registered, total)
         return
-    other = "--matcher exhaustive" if matcher == "sequential" else "--matcher sequential for video-like sequences"
+    other = (
+        "--matcher exhaustive" if matcher == "sequential" else "--matcher sequential for video-like sequences"
+    )
     raise FignetError(
         f"only {registered} of {total} images registered (need {needed}); try photos with more overlap "
         f"between neighbours (each part of the scene in 3+ views), more texture in the scene, fewer blurred "
@@ -232,21 +249,29 @@ def reconstruction_to_cameras(reconstruction, order: list[str] | None = None) ->
         w2c[:3, :] = image.cam_from_world().matrix()
         c2w.append(np.linalg.inv(w2c))
     if len(sizes) > 1:
-        raise FormatError(f"the reconstruction's cameras have different image sizes {sorted(sizes)}; fignetctl needs one size")
+        raise FormatError(
+            f"the reconstruction's cameras have different image sizes {sorted(sizes)}; fignetctl needs one size"
+        )
     points, colors = _sparse_points(reconstruction)
     width, height = sizes.pop()
     c2w = np.array(c2w)
     c2w[:, 3] = [0, 0, 0, 1]
-    return validate(Cameras(np.array(names), np.array(K), c2w, width, height, points, colors), "reconstruction")
+    return validate(
+        Cameras(np.array(names), np.array(K), c2w, width, height, points, colors), "reconstruction"
+    )
 
 
 def _pinhole_K(camera) -> np.ndarray:
     if camera.model_name not in PINHOLE_MODELS:
-        extra = np.asarray(camera.params)[list(camera.extra_params_idxs())] if camera.extra_params_idxs() else []
+        extra = (
+            np.asarray(camera.params)[list(camera.extra_params_idxs())] if camera.extra_params_idxs() else []
+        )
         if np.any(np.abs(extra) > 1e-6):
             log.warning(
                 "camera %d is %s with distortion %s; it is kept as a pinhole camera, so undistort the "
-                "images first (colmap image_undistorter) for exact poses", camera.camera_id, camera.model_name,
+                "images first (colmap image_undistorter) for exact poses",
+                camera.camera_id,
+                camera.model_name,
                 np.round(extra, 4).tolist(),
             )
     return np.asarray(camera.calibration_matrix(), np.float64)
@@ -270,11 +295,15 @@ def import_colmap(model_dir) -> Cameras:
     has_bin = all((model_dir / f"{part}.bin").is_file() for part in ("cameras", "images"))
     has_txt = all((model_dir / f"{part}.txt").is_file() for part in ("cameras", "images"))
     if not (has_bin or has_txt):
-        raise FormatError(f"{model_dir}: no cameras.bin/images.bin (or .txt); is it a COLMAP sparse model, e.g. sparse/0?")
+        raise FormatError(
+            f"{model_dir}: no cameras.bin/images.bin (or .txt); is it a COLMAP sparse model, e.g. sparse/0?"
+        )
     try:
         reconstruction = pycolmap.Reconstruction(model_dir)
     except (RuntimeError, ValueError, OSError) as error:
-        raise FormatError(f"{model_dir}: not a readable COLMAP model ({str(error).splitlines()[0]})") from None
+        raise FormatError(
+            f"{model_dir}: not a readable COLMAP model ({str(error).splitlines()[0]})"
+        ) from None
     return reconstruction_to_cameras(reconstruction)
 
 
@@ -296,12 +325,22 @@ def log_cameras_to_rerun(path_rrd, cameras: Cameras, image_dir=None, entity_root
         try:
             rec.log(entity_root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
             if len(cameras.points):
-                rec.log(f"{entity_root}/points", rr.Points3D(cameras.points, colors=cameras.point_colors, radii=-2.0), static=True)
+                rec.log(
+                    f"{entity_root}/points",
+                    rr.Points3D(cameras.points, colors=cameras.point_colors, radii=-2.0),
+                    static=True,
+                )
             for index, name in enumerate(cameras.image_names):
                 entity = f"{entity_root}/cameras/{index:04d}"
                 c2w = cameras.c2w[index]
                 rec.log(entity, rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]), static=True)
-                rec.log(entity, rr.Pinhole(image_from_camera=cameras.K[index], resolution=[cameras.width, cameras.height]), static=True)
+                rec.log(
+                    entity,
+                    rr.Pinhole(
+                        image_from_camera=cameras.K[index], resolution=[cameras.width, cameras.height]
+                    ),
+                    static=True,
+                )
                 file = Path(image_dir) / str(name) if image_dir is not None else None
                 if file is not None and file.is_file():
                     rec.log(f"{entity}/image", rr.EncodedImage(path=file), static=True)

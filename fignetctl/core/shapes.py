@@ -46,8 +46,17 @@ RECIPE_VERSION = 1  # bump when a builder changes: it is part of every cache key
 MOVI_B_LARGEST_SIDE = 2.0
 MOVI_C_LARGEST_SIDE = 1.0
 MOVI_B_KUBRIC_SHAPES = (
-    "cube", "cylinder", "sphere", "cone", "torus", "gear",
-    "torus_knot", "sponge", "spot", "teapot", "suzanne",
+    "cube",
+    "cylinder",
+    "sphere",
+    "cone",
+    "torus",
+    "gear",
+    "torus_knot",
+    "sponge",
+    "spot",
+    "teapot",
+    "suzanne",
 )
 MOVI_B_REPLACEMENTS = {"spot": "bunny", "teapot": "mug", "suzanne": "duck"}
 MOVI_B_VERTEX_RANGE = (250, 1200)
@@ -129,7 +138,7 @@ def movi_c_names(split: str = "all") -> list[str]:
 
 
 def split_of(name: str) -> str:
-    """"test" for the TEST_SPLIT_PERCENT of names whose SHA-256 falls in the held-out bucket."""
+    """ "test" for the TEST_SPLIT_PERCENT of names whose SHA-256 falls in the held-out bucket."""
     bucket = int(hashlib.sha256(name.encode()).hexdigest()[:8], 16) % 100
     return "test" if bucket < TEST_SPLIT_PERCENT else "train"
 
@@ -204,7 +213,9 @@ def create_pybullet_collision_shape(
     cache = Path(cache_dir) if cache_dir is not None else shape_cache_dir()
     path = convex_parts_obj_path(asset, cache)
     shape = pybullet.createCollisionShape(
-        pybullet.GEOM_MESH, fileName=str(path), meshScale=[float(scale)] * 3,
+        pybullet.GEOM_MESH,
+        fileName=str(path),
+        meshScale=[float(scale)] * 3,
         physicsClientId=physics_client_id,
     )
     if shape < 0:
@@ -267,9 +278,14 @@ def pick_recipes(recipes: list, names, preset: str) -> list:
 def movi_b_recipes() -> list[ShapeRecipe]:
     """The 11 movi-b recipes in Kubric's order."""
     procedural = {
-        "cube": cube_surface, "cylinder": cylinder_surface, "sphere": sphere_surface,
-        "cone": cone_surface, "torus": torus_parts, "gear": gear_parts,
-        "torus_knot": torus_knot_parts, "sponge": sponge_parts,
+        "cube": cube_surface,
+        "cylinder": cylinder_surface,
+        "sphere": sphere_surface,
+        "cone": cone_surface,
+        "torus": torus_parts,
+        "gear": gear_parts,
+        "torus_knot": torus_knot_parts,
+        "sponge": sponge_parts,
     }
     recipes = []
     for name in movi_b_names():
@@ -295,8 +311,12 @@ PROCEDURAL_SOURCES = {
 def procedural_recipe(name: str, builder: Callable) -> ShapeRecipe:
     """A movi-b recipe built in code by `builder` (no input files)."""
     return ShapeRecipe(
-        name=name, build=builder, source=PROCEDURAL_SOURCES[name], input_files=(),
-        largest_side=MOVI_B_LARGEST_SIDE, vertex_range=MOVI_B_VERTEX_RANGE,
+        name=name,
+        build=builder,
+        source=PROCEDURAL_SOURCES[name],
+        input_files=(),
+        largest_side=MOVI_B_LARGEST_SIDE,
+        vertex_range=MOVI_B_VERTEX_RANGE,
     )
 
 
@@ -306,9 +326,12 @@ def movi_c_recipe(name: str) -> ShapeRecipe:
         return scan_recipe(name, MOVI_C_LARGEST_SIDE, MOVI_C_VERTEX_RANGE)
     path = pybullet_data_path() / "random_urdfs" / name[-3:] / f"{name[-3:]}.obj"
     return ShapeRecipe(
-        name=name, build=lambda: (read_obj_groups(path), None),
+        name=name,
+        build=lambda: (read_obj_groups(path), None),
         source=f"pybullet_data/random_urdfs/{name[-3:]}/{name[-3:]}.obj (V-HACD parts as shipped)",
-        input_files=(str(path),), largest_side=MOVI_C_LARGEST_SIDE, vertex_range=MOVI_C_VERTEX_RANGE,
+        input_files=(str(path),),
+        largest_side=MOVI_C_LARGEST_SIDE,
+        vertex_range=MOVI_C_VERTEX_RANGE,
     )
 
 
@@ -323,14 +346,18 @@ def scan_recipe(name: str, largest_side: float, vertex_range: tuple) -> ShapeRec
     }
     how = {"groups": "its V-HACD parts as shipped", "vhacd": "pybullet.vhacd", "hull": "its convex hull"}
     return ShapeRecipe(
-        name=name, build=builders[method], source=f"pybullet_data/{relative} via {how[method]}",
-        input_files=(str(path),), largest_side=largest_side, vertex_range=vertex_range,
+        name=name,
+        build=builders[method],
+        source=f"pybullet_data/{relative} via {how[method]}",
+        input_files=(str(path),),
+        largest_side=largest_side,
+        vertex_range=vertex_range,
         parameters={"method": method},
     )
 
 
 def random_urdf_name(index: int) -> str:
-    """"random_urdfs_042" for index 42 (no "/": mesh names are HDF5 group names)."""
+    """ "random_urdfs_042" for index 42 (no "/": mesh names are HDF5 group names)."""
     return f"random_urdfs_{index:03d}"
 
 
@@ -408,8 +435,11 @@ def read_cached_asset(path: Path, name: str) -> ShapeAsset:
             raise FignetError(str(stored["failure"]))
         parts = np.split(stored["part_vertices"], np.cumsum(stored["part_sizes"])[:-1])
         return ShapeAsset(
-            name=name, vertices=stored["vertices"], faces=stored["faces"],
-            convex_parts=tuple(parts), source=str(stored["source"]),
+            name=name,
+            vertices=stored["vertices"],
+            faces=stored["faces"],
+            convex_parts=tuple(parts),
+            source=str(stored["source"]),
         )
 
 
@@ -563,9 +593,17 @@ def hulls_side_by_side(parts: list):
         remap = np.zeros(len(hull.points), dtype=np.int64)
         remap[hull.vertices] = np.arange(len(hull.vertices)) + offset
         triangles = hull.simplices.copy()
-        outward = np.einsum("ij,ij->i", np.cross(
-            hull.points[triangles[:, 1]] - hull.points[triangles[:, 0]],
-            hull.points[triangles[:, 2]] - hull.points[triangles[:, 0]]), hull.equations[:, :3]) > 0
+        outward = (
+            np.einsum(
+                "ij,ij->i",
+                np.cross(
+                    hull.points[triangles[:, 1]] - hull.points[triangles[:, 0]],
+                    hull.points[triangles[:, 2]] - hull.points[triangles[:, 0]],
+                ),
+                hull.equations[:, :3],
+            )
+            > 0
+        )
         triangles[~outward] = triangles[~outward][:, ::-1]
         vertices.append(hull.points[hull.vertices])
         faces.append(remap[triangles])
@@ -732,15 +770,35 @@ def sphere_surface():
 
 def cylinder_surface():
     """A cylinder of radius 1 and height 2, with rings on the caps and the side."""
-    profile = [(0.0, -1.0), (1 / 3, -1.0), (2 / 3, -1.0), (1.0, -1.0), (1.0, -0.5), (1.0, 0.0),
-               (1.0, 0.5), (1.0, 1.0), (2 / 3, 1.0), (1 / 3, 1.0), (0.0, 1.0)]
+    profile = [
+        (0.0, -1.0),
+        (1 / 3, -1.0),
+        (2 / 3, -1.0),
+        (1.0, -1.0),
+        (1.0, -0.5),
+        (1.0, 0.0),
+        (1.0, 0.5),
+        (1.0, 1.0),
+        (2 / 3, 1.0),
+        (1 / 3, 1.0),
+        (0.0, 1.0),
+    ]
     return [], revolved_surface(profile, sections=40)
 
 
 def cone_surface():
     """A cone of base radius 1 and height 2, with rings on the base and the side."""
-    profile = [(0.0, -1.0), (1 / 3, -1.0), (2 / 3, -1.0), (1.0, -1.0), (0.8, -0.6), (0.6, -0.2),
-               (0.4, 0.2), (0.2, 0.6), (0.0, 1.0)]
+    profile = [
+        (0.0, -1.0),
+        (1 / 3, -1.0),
+        (2 / 3, -1.0),
+        (1.0, -1.0),
+        (0.8, -0.6),
+        (0.6, -0.2),
+        (0.4, 0.2),
+        (0.2, 0.6),
+        (0.0, 1.0),
+    ]
     return [], revolved_surface(profile, sections=40)
 
 
@@ -911,8 +969,13 @@ def configure_kubric_physics(client: int) -> None:
     pybullet.setGravity(0.0, 0.0, -10.0, physicsClientId=client)
     pybullet.setTimeStep(1.0 / PHYSICS_HZ, physicsClientId=client)
     pybullet.setPhysicsEngineParameter(
-        restitutionVelocityThreshold=0, warmStartingFactor=0, useSplitImpulse=True, contactSlop=0,
-        enableConeFriction=False, deterministicOverlappingPairs=True, physicsClientId=client,
+        restitutionVelocityThreshold=0,
+        warmStartingFactor=0,
+        useSplitImpulse=True,
+        contactSlop=0,
+        enableConeFriction=False,
+        deterministicOverlappingPairs=True,
+        physicsClientId=client,
     )
 
 
@@ -925,7 +988,10 @@ def drop_asset(asset: ShapeAsset, scale: float, quaternion_wxyz, client: int, ca
     lowest = float((scale * asset.vertices.astype(np.float64) @ rotation.T)[:, 2].min())
     shape = create_pybullet_collision_shape(asset, scale, physics_client_id=client, cache_dir=cache_dir)
     return pybullet.createMultiBody(
-        1.0, shape, basePosition=[0.0, 0.0, 0.01 - lowest], baseOrientation=[x, y, z, w],
+        1.0,
+        shape,
+        basePosition=[0.0, 0.0, 0.01 - lowest],
+        baseOrientation=[x, y, z, w],
         physicsClientId=client,
     )
 

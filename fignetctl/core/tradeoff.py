@@ -41,7 +41,15 @@ from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.tradeoff"
 FORMAT_VERSION = 1
-KNOBS = ("decimation", "architecture", "collision-radius", "message-passing", "marching-cubes", "nerf-steps", "device")
+KNOBS = (
+    "decimation",
+    "architecture",
+    "collision-radius",
+    "message-passing",
+    "marching-cubes",
+    "nerf-steps",
+    "device",
+)
 DECIMATION_FACES = (16, 32, 64, 128, 256, 512, 1024, None)
 COLLISION_RADII = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
 NETWORK_SIZES = ((32, 1), (32, 2), (32, 4), (16, 2), (64, 2))
@@ -99,13 +107,26 @@ def mark_pareto(result: dict) -> dict:
     """Set `pareto` on every point of a result from the medians."""
     points = result["points"]
     sign = -1.0 if result["higher_is_better"] else 1.0
-    front = pareto_front([p["seconds"]["median"] for p in points], [sign * p["error"]["median"] for p in points])
+    front = pareto_front(
+        [p["seconds"]["median"] for p in points], [sign * p["error"]["median"] for p in points]
+    )
     for point, on_front in zip(points, front):
         point["pareto"] = bool(on_front)
     return result
 
 
-def make_result(knob, setting_name, x_label, y_label, points, method, notes=(), higher_is_better=False, config=None, inputs=None) -> dict:
+def make_result(
+    knob,
+    setting_name,
+    x_label,
+    y_label,
+    points,
+    method,
+    notes=(),
+    higher_is_better=False,
+    config=None,
+    inputs=None,
+) -> dict:
     """The json of one knob's sweep, Pareto front marked."""
     result = {
         "format": FORMAT,
@@ -137,7 +158,13 @@ def environment(device) -> dict:
         torch_version = torch.__version__
     except ImportError:  # pragma: no cover - torch is a dependency
         torch_version = None
-    return {"device": device, "cpu_count": os.cpu_count(), "load_average": load, "python": platform.python_version(), "torch": torch_version}
+    return {
+        "device": device,
+        "cpu_count": os.cpu_count(),
+        "load_average": load,
+        "python": platform.python_version(),
+        "torch": torch_version,
+    }
 
 
 # -- writing: json, csv, png ----------------------------------------------------------------
@@ -147,11 +174,22 @@ def csv_rows(result: dict) -> list[list]:
     """Header and one row per point: setting, the two figures' median/q25/q75/n, pareto, and
     the scalar extras (a statistic's median)."""
     stats = ("median", "q25", "q75", "n")
-    extras = [k for k in result["points"][0] if k not in ("setting", "seconds", "error", "pareto")] if result["points"] else []
-    header = ["setting"] + [f"seconds_{s}" for s in stats] + [f"error_{s}" for s in stats] + ["pareto"] + extras
+    extras = (
+        [k for k in result["points"][0] if k not in ("setting", "seconds", "error", "pareto")]
+        if result["points"]
+        else []
+    )
+    header = (
+        ["setting"] + [f"seconds_{s}" for s in stats] + [f"error_{s}" for s in stats] + ["pareto"] + extras
+    )
     rows = [header]
     for p in result["points"]:
-        row = [p["setting"]] + [p["seconds"][s] for s in stats] + [p["error"][s] for s in stats] + [int(p["pareto"])]
+        row = (
+            [p["setting"]]
+            + [p["seconds"][s] for s in stats]
+            + [p["error"][s] for s in stats]
+            + [int(p["pareto"])]
+        )
         row += [_scalar(p.get(k)) for k in extras]
         rows.append(row)
     return rows
@@ -198,9 +236,22 @@ def plot_result(result: dict, path) -> None:
     figure, axes = plt.subplots(figsize=(6.4, 4.2))
     for p in points:
         x, y = p["seconds"], p["error"]
-        axes.errorbar(x["median"], y["median"], xerr=[[x["median"] - x["q25"]], [x["q75"] - x["median"]]],
-                      yerr=[[y["median"] - y["q25"]], [y["q75"] - y["median"]]], fmt="o", color="C1" if p["pareto"] else "C7", capsize=3)
-        axes.annotate(str(p["setting"]), (x["median"], y["median"]), textcoords="offset points", xytext=(5, 5), fontsize=8)
+        axes.errorbar(
+            x["median"],
+            y["median"],
+            xerr=[[x["median"] - x["q25"]], [x["q75"] - x["median"]]],
+            yerr=[[y["median"] - y["q25"]], [y["q75"] - y["median"]]],
+            fmt="o",
+            color="C1" if p["pareto"] else "C7",
+            capsize=3,
+        )
+        axes.annotate(
+            str(p["setting"]),
+            (x["median"], y["median"]),
+            textcoords="offset points",
+            xytext=(5, 5),
+            fontsize=8,
+        )
     front = sorted((p["seconds"]["median"], p["error"]["median"]) for p in points if p["pareto"])
     if front:
         axes.plot(*zip(*front), "-", color="C1", label="Pareto front")
@@ -210,7 +261,9 @@ def plot_result(result: dict, path) -> None:
         axes.set_xscale("log")
     better = "higher is better" if result["higher_is_better"] else "lower is better"
     axes.set(xlabel=result["x_label"], ylabel=f"{result['y_label']} ({better})")
-    axes.set_title(textwrap.fill(f"{result['knob']}: {result['setting_name']} (median, IQR bars)", 70), fontsize=10)
+    axes.set_title(
+        textwrap.fill(f"{result['knob']}: {result['setting_name']} (median, IQR bars)", 70), fontsize=10
+    )
     axes.grid(alpha=0.3)
     figure.tight_layout()
     figure.savefig(path, dpi=110, format="png")
@@ -232,7 +285,14 @@ def make_ground_truth(path, num_trajectories, duration, seed, split="test", on_t
         results.append(result)
         if on_trajectory is not None:
             on_trajectory()
-    attrs = {"source": "fignetctl tradeoff", "version": __version__, "preset": "movi-b", "seed": seed, "split": split, "config": config.to_json()}
+    attrs = {
+        "source": "fignetctl tradeoff",
+        "version": __version__,
+        "preset": "movi-b",
+        "seed": seed,
+        "split": split,
+        "config": config.to_json(),
+    }
     return write_trajectories(path, movi.dataset_file(results, assets, config, num_trajectories, attrs))
 
 
@@ -253,7 +313,9 @@ def load_scenes(data_path, simulator_config, max_trajectories):
     data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
     cache = {}
-    return [scene_from_trajectory(data, key, simulator_config, cache, EVALUATION_STATIC_REACH) for key in keys]
+    return [
+        scene_from_trajectory(data, key, simulator_config, cache, EVALUATION_STATIC_REACH) for key in keys
+    ]
 
 
 def timed_rollout(simulator, scene, steps):
@@ -307,8 +369,14 @@ def network_peak_mib(simulator, scenes, device, seed=0) -> list[float]:
     peaks = []
     for scene in scenes:
         frame = max(1, min(scene.positions.shape[0] - 2, scene.positions.shape[0] // 2))
-        workload = benchmark.make_workload(simulator, scene, frame, torch.Generator().manual_seed(seed), device)
-        peaks.append(benchmark.peak_memory_mib(lambda: benchmark.run_network(workload, device), workload, device)["peak_mib"])
+        workload = benchmark.make_workload(
+            simulator, scene, frame, torch.Generator().manual_seed(seed), device
+        )
+        peaks.append(
+            benchmark.peak_memory_mib(lambda: benchmark.run_network(workload, device), workload, device)[
+                "peak_mib"
+            ]
+        )
     return peaks
 
 
@@ -339,7 +407,10 @@ ROLLOUT_METHOD = (
 
 def mean_dynamic_faces(scenes) -> float:
     """Mean faces per dynamic object of prepared scenes."""
-    counts = [np.bincount(s.geometry.face_object, minlength=s.geometry.num_objects)[~s.geometry.static] for s in scenes]
+    counts = [
+        np.bincount(s.geometry.face_object, minlength=s.geometry.num_objects)[~s.geometry.static]
+        for s in scenes
+    ]
     return float(np.mean(np.concatenate(counts)))
 
 
@@ -354,28 +425,58 @@ def sweep_decimation(data_path, config: TradeoffConfig, on_progress=None, faces=
             settings = dataclasses.replace(simulator.config, max_faces_per_object=n_f)
             scenes = load_scenes(data_path, settings, config.trajectories)
             label = "full" if n_f is None else n_f
-            points.append(rollout_point(label, simulator, scenes, config, on_progress, mean_faces_per_dynamic_object=mean_dynamic_faces(scenes)))
+            points.append(
+                rollout_point(
+                    label,
+                    simulator,
+                    scenes,
+                    config,
+                    on_progress,
+                    mean_faces_per_dynamic_object=mean_dynamic_faces(scenes),
+                )
+            )
     notes = [
         "the bundled FIGNet* was trained on meshes decimated to at most 256 faces and is weak "
         "(docs/simulator.md: level with a constant-velocity baseline); settings other than 256 are out of its training distribution",
         "ground truth: PyBullet on the full meshes (convex decomposition, as make-dataset), so no setting matches it by construction",
     ]
-    return make_result("decimation", "faces per object n_f", "seconds per rollout step", f"translation RMSE after {config.steps} steps (m)",
-                       points, ROLLOUT_METHOD, notes, config=config, inputs=file_inputs(data_path))
+    return make_result(
+        "decimation",
+        "faces per object n_f",
+        "seconds per rollout step",
+        f"translation RMSE after {config.steps} steps (m)",
+        points,
+        ROLLOUT_METHOD,
+        notes,
+        config=config,
+        inputs=file_inputs(data_path),
+    )
 
 
 def sweep_architecture(data_path, config: TradeoffConfig, on_progress=None) -> dict:
     from fignetctl.core.model import benchmark
     from fignetctl.core.model.runs import load_model
 
-    simulators = {"FIGNet": load_model("fignet-movi-b", config.device).eval(), "FIGNet*": load_model("fignet-star-movi-b", config.device).eval()}
+    simulators = {
+        "FIGNet": load_model("fignet-movi-b", config.device).eval(),
+        "FIGNet*": load_model("fignet-star-movi-b", config.device).eval(),
+    }
     points = []
     with _torch_threads(config.threads):
         for label, simulator in simulators.items():
             scenes = load_scenes(data_path, simulator.config, config.trajectories)
             points.append(rollout_point(label, simulator, scenes, config, on_progress))
-        bench = benchmark.run_benchmark([data_path], simulators, benchmark.BenchmarkConfig(
-            samples=config.trajectories, repeats=config.repeats, seed=config.seed, device=config.device, threads=config.threads))
+        bench = benchmark.run_benchmark(
+            [data_path],
+            simulators,
+            benchmark.BenchmarkConfig(
+                samples=config.trajectories,
+                repeats=config.repeats,
+                seed=config.seed,
+                device=config.device,
+                threads=config.threads,
+            ),
+        )
     models = next(iter(bench["data"].values()))["models"]
     for point in points:
         model = models[point["setting"]]
@@ -383,10 +484,21 @@ def sweep_architecture(data_path, config: TradeoffConfig, on_progress=None) -> d
         point["bench_step_memory_mib"] = model["step_memory"]["peak_mib"]
         point["train_step_ms"] = model["times_ms"]["train_step_ms"]
         point["edges_total"] = model["edges"]["total"]
-    notes = ["bundled checkpoints: FIGNet* 7000 training steps, FIGNet 4250 (docs/simulator.md); both weak",
-             f"memory and train-step figures: bench-memory (benchmark.run_benchmark), {config.trajectories} (trajectory, frame) pairs × {config.repeats} repeats"]
-    return make_result("architecture", "FIGNet vs FIGNet*", "seconds per rollout step", f"translation RMSE after {config.steps} steps (m)",
-                       points, ROLLOUT_METHOD, notes, config=config, inputs=file_inputs(data_path))
+    notes = [
+        "bundled checkpoints: FIGNet* 7000 training steps, FIGNet 4250 (docs/simulator.md); both weak",
+        f"memory and train-step figures: bench-memory (benchmark.run_benchmark), {config.trajectories} (trajectory, frame) pairs × {config.repeats} repeats",
+    ]
+    return make_result(
+        "architecture",
+        "FIGNet vs FIGNet*",
+        "seconds per rollout step",
+        f"translation RMSE after {config.steps} steps (m)",
+        points,
+        ROLLOUT_METHOD,
+        notes,
+        config=config,
+        inputs=file_inputs(data_path),
+    )
 
 
 def face_face_edges(simulator, scenes, every=5) -> list[int]:
@@ -397,7 +509,12 @@ def face_face_edges(simulator, scenes, every=5) -> list[int]:
     counts = []
     for scene in scenes:
         for t in range(1, scene.positions.shape[0] - 1, every):
-            graph = build_scene_graph(scene.geometry, scene.positions[t - 1 : t + 2], scene.quaternions[t - 1 : t + 2], simulator.config.graph).graph
+            graph = build_scene_graph(
+                scene.geometry,
+                scene.positions[t - 1 : t + 2],
+                scene.quaternions[t - 1 : t + 2],
+                simulator.config.graph,
+            ).graph
             counts.append(graph.edge_sets[FACE_FACE].num_edges if FACE_FACE in graph.edge_sets else 0)
     return counts
 
@@ -414,14 +531,29 @@ def sweep_collision_radius(data_path, config: TradeoffConfig, on_progress=None, 
     with _torch_threads(config.threads):
         for radius in radii:
             simulator = copy.copy(base)  # shares the weights; only the graph settings differ
-            simulator.config = dataclasses.replace(base.config, graph=dataclasses.replace(base.config.graph, collision_radius=radius))
+            simulator.config = dataclasses.replace(
+                base.config, graph=dataclasses.replace(base.config.graph, collision_radius=radius)
+            )
             edges = median_iqr(face_face_edges(simulator, scenes))
-            points.append(rollout_point(radius, simulator, scenes, config, on_progress, face_face_edges=edges))
-    notes = ["the bundled FIGNet* was trained at a 0.2 m radius: every other radius feeds it face–face edges it never saw "
-             "(out of distribution), so its error away from 0.2 m says as much about the training as about the radius",
-             "face_face_edges: hyper-edges (both directions) of the graph of every 5th ground-truth frame"]
-    return make_result("collision-radius", "collision radius (m)", "seconds per rollout step", f"translation RMSE after {config.steps} steps (m)",
-                       points, ROLLOUT_METHOD, notes, config=config, inputs=file_inputs(data_path))
+            points.append(
+                rollout_point(radius, simulator, scenes, config, on_progress, face_face_edges=edges)
+            )
+    notes = [
+        "the bundled FIGNet* was trained at a 0.2 m radius: every other radius feeds it face–face edges it never saw "
+        "(out of distribution), so its error away from 0.2 m says as much about the training as about the radius",
+        "face_face_edges: hyper-edges (both directions) of the graph of every 5th ground-truth frame",
+    ]
+    return make_result(
+        "collision-radius",
+        "collision radius (m)",
+        "seconds per rollout step",
+        f"translation RMSE after {config.steps} steps (m)",
+        points,
+        ROLLOUT_METHOD,
+        notes,
+        config=config,
+        inputs=file_inputs(data_path),
+    )
 
 
 def one_step_errors(simulator, scenes, frames_per_trajectory, seed) -> tuple[list, list, list]:
@@ -433,7 +565,9 @@ def one_step_errors(simulator, scenes, frames_per_trajectory, seed) -> tuple[lis
         for t in np.unique(np.linspace(1, count - 2, frames_per_trajectory).round().astype(int)):
             dynamic = ~scene.geometry.static
             started = time.perf_counter()
-            position, _ = simulator.step(scene.geometry, scene.positions[t - 1 : t + 2], scene.quaternions[t - 1 : t + 2])
+            position, _ = simulator.step(
+                scene.geometry, scene.positions[t - 1 : t + 2], scene.quaternions[t - 1 : t + 2]
+            )
             seconds.append(time.perf_counter() - started)
             truth = scene.positions[t + 1][dynamic]
             guess = 2 * scene.positions[t][dynamic] - scene.positions[t - 1][dynamic]
@@ -442,13 +576,20 @@ def one_step_errors(simulator, scenes, frames_per_trajectory, seed) -> tuple[lis
     return errors, baseline, seconds
 
 
-def sweep_message_passing(train_path, test_path, config: TradeoffConfig, on_progress=None, sizes=None) -> dict:
+def sweep_message_passing(
+    train_path, test_path, config: TradeoffConfig, on_progress=None, sizes=None
+) -> dict:
     from fignetctl.core.model.network import NetworkConfig
     from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
 
     sizes = sizes or (NETWORK_SIZES[:2] if config.quick else NETWORK_SIZES)
-    training = TrainingConfig(steps=config.train_steps, batch_size=2, normalizer_accumulation_steps=config.train_steps,
-                              checkpoint_every=10**9, seed=config.seed)
+    training = TrainingConfig(
+        steps=config.train_steps,
+        batch_size=2,
+        normalizer_accumulation_steps=config.train_steps,
+        checkpoint_every=10**9,
+        seed=config.seed,
+    )
     points = []
     with _torch_threads(config.threads):
         for latent, steps in sizes:
@@ -460,21 +601,44 @@ def sweep_message_passing(train_path, test_path, config: TradeoffConfig, on_prog
             train_seconds = time.perf_counter() - started
             simulator = trainer.simulator.eval()
             scenes = load_scenes(test_path, simulator.config, config.trajectories)
-            errors, baseline, seconds = one_step_errors(simulator, scenes, config.frames_per_trajectory, config.seed)
-            points.append({"setting": f"L{latent}×MP{steps}", "seconds": median_iqr(seconds), "error": median_iqr(errors),
-                           "latent_size": latent, "message_passing_steps": steps,
-                           "parameters": sum(p.numel() for p in simulator.parameters()),
-                           "train_seconds": round(train_seconds, 2), "final_loss_mean_last_10": float(np.mean([h["loss"] for h in trainer.history[-10:]])),
-                           "constant_velocity_error_mm": median_iqr(baseline)})
+            errors, baseline, seconds = one_step_errors(
+                simulator, scenes, config.frames_per_trajectory, config.seed
+            )
+            points.append(
+                {
+                    "setting": f"L{latent}×MP{steps}",
+                    "seconds": median_iqr(seconds),
+                    "error": median_iqr(errors),
+                    "latent_size": latent,
+                    "message_passing_steps": steps,
+                    "parameters": sum(p.numel() for p in simulator.parameters()),
+                    "train_seconds": round(train_seconds, 2),
+                    "final_loss_mean_last_10": float(np.mean([h["loss"] for h in trainer.history[-10:]])),
+                    "constant_velocity_error_mm": median_iqr(baseline),
+                }
+            )
             if on_progress is not None:
                 on_progress()
-    method = ("each model: FIGNet* with latent L (MLP hidden L, 2 hidden layers) and MP message-passing steps, trained "
-              f"{config.train_steps} steps at batch 2 from seed {config.seed} on the training file; error: one-step translation RMSE (mm) "
-              "of the dynamic objects from ground-truth frames t−1, t, per held-out frame, median and quartiles over frames; seconds: that step's wall time")
-    notes = [f"{config.train_steps} training steps is a budget, not convergence: the figures compare what each size learns for the same steps",
-             "constant_velocity_error_mm: x_t + (x_t − x_{t−1}) on the same frames, for scale"]
-    return make_result("message-passing", "latent size × message-passing steps", "seconds per step", "one-step translation error (mm)",
-                       points, method, notes, config=config, inputs=file_inputs(train_path, test_path))
+    method = (
+        "each model: FIGNet* with latent L (MLP hidden L, 2 hidden layers) and MP message-passing steps, trained "
+        f"{config.train_steps} steps at batch 2 from seed {config.seed} on the training file; error: one-step translation RMSE (mm) "
+        "of the dynamic objects from ground-truth frames t−1, t, per held-out frame, median and quartiles over frames; seconds: that step's wall time"
+    )
+    notes = [
+        f"{config.train_steps} training steps is a budget, not convergence: the figures compare what each size learns for the same steps",
+        "constant_velocity_error_mm: x_t + (x_t − x_{t−1}) on the same frames, for scale",
+    ]
+    return make_result(
+        "message-passing",
+        "latent size × message-passing steps",
+        "seconds per step",
+        "one-step translation error (mm)",
+        points,
+        method,
+        notes,
+        config=config,
+        inputs=file_inputs(train_path, test_path),
+    )
 
 
 # -- mesh extraction --------------------------------------------------------------------------
@@ -501,10 +665,15 @@ def capture_objects(capture) -> list:
     if not prompts.is_file():
         raise FignetError(f"{capture}: no prompts.json; pass the folder `fignetctl render-views` wrote")
     names = [obj["name"] for obj in json.loads(prompts.read_text())["objects"]]
-    return [(name, trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh")) for name in names]
+    return [
+        (name, trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh"))
+        for name in names
+    ]
 
 
-def sweep_marching_cubes(capture, nerf_path, config: TradeoffConfig, on_progress=None, resolutions=None) -> dict:
+def sweep_marching_cubes(
+    capture, nerf_path, config: TradeoffConfig, on_progress=None, resolutions=None
+) -> dict:
     from fignetctl.core.mesh_extraction import ExtractionSettings, extract_object, padded_box
     from fignetctl.core.nerf.io import load_nerf
 
@@ -525,15 +694,35 @@ def sweep_marching_cubes(capture, nerf_path, config: TradeoffConfig, on_progress
             faces.append(len(extraction.object_mesh.faces))
             if on_progress is not None:
                 on_progress()
-        points.append({"setting": resolution, "seconds": median_iqr(seconds), "error": median_iqr(errors),
-                       "per_object_chamfer": dict(zip([n for n, _ in objects], errors)), "faces_made": median_iqr(faces)})
-    method = ("error: symmetric Chamfer distance (mean closest-point distance of 20,000 surface samples each way) of the "
-              "undecimated marching-cubes object mesh to the capture's ground-truth mesh, over the object's largest side; one value per "
-              f"object, median and quartiles over objects; seconds: extract_object (object + environment), {config.repeats} runs per object, "
-              "median and quartiles over objects × runs; box: the ground-truth mesh's bounds padded by ExtractionSettings.padding")
-    notes = [f"density: {nerf_path} ({json.dumps({k: v for k, v in model.metrics.items() if k != 'held_out'})})"]
-    return make_result("marching-cubes", "grid resolution (vertices along the box's longest side)", "seconds per extract_object",
-                       "Chamfer / object size", points, method, notes, config=config, inputs=file_inputs(nerf_path))
+        points.append(
+            {
+                "setting": resolution,
+                "seconds": median_iqr(seconds),
+                "error": median_iqr(errors),
+                "per_object_chamfer": dict(zip([n for n, _ in objects], errors)),
+                "faces_made": median_iqr(faces),
+            }
+        )
+    method = (
+        "error: symmetric Chamfer distance (mean closest-point distance of 20,000 surface samples each way) of the "
+        "undecimated marching-cubes object mesh to the capture's ground-truth mesh, over the object's largest side; one value per "
+        f"object, median and quartiles over objects; seconds: extract_object (object + environment), {config.repeats} runs per object, "
+        "median and quartiles over objects × runs; box: the ground-truth mesh's bounds padded by ExtractionSettings.padding"
+    )
+    notes = [
+        f"density: {nerf_path} ({json.dumps({k: v for k, v in model.metrics.items() if k != 'held_out'})})"
+    ]
+    return make_result(
+        "marching-cubes",
+        "grid resolution (vertices along the box's longest side)",
+        "seconds per extract_object",
+        "Chamfer / object size",
+        points,
+        method,
+        notes,
+        config=config,
+        inputs=file_inputs(nerf_path),
+    )
 
 
 def sweep_nerf_steps(curve_path, config: TradeoffConfig) -> dict:
@@ -544,15 +733,35 @@ def sweep_nerf_steps(curve_path, config: TradeoffConfig) -> dict:
     for run in data.get("results", []):
         for row in run.get("curve", []):
             single = lambda v: {"median": float(v), "q25": float(v), "q75": float(v), "n": 1}  # noqa: E731
-            points.append({"setting": f"{run.get('preset', '?')} {row['step']}", "seconds": single(row["train_seconds"]),
-                           "error": single(row["held_out_psnr"]), "depth_error_percent_of_scene": row.get("depth_error_percent_of_scene")})
+            points.append(
+                {
+                    "setting": f"{run.get('preset', '?')} {row['step']}",
+                    "seconds": single(row["train_seconds"]),
+                    "error": single(row["held_out_psnr"]),
+                    "depth_error_percent_of_scene": row.get("depth_error_percent_of_scene"),
+                }
+            )
     if not points:
         raise FignetError(f"{curve_path}: no learning curve in it (benchmarks/bench_nerf.py writes one)")
-    notes = [f"reused from {curve_path} ({data.get('machine', 'machine not recorded')}, capture {data.get('capture')}): "
-             "one training run per preset, so there is no spread (n = 1 per point)"]
-    method = "held-out PSNR (dB) of the views fit-nerf holds out, against cumulative training seconds at that step"
-    return make_result("nerf-steps", "fit-nerf steps", "training seconds", "held-out PSNR (dB)", points, method, notes,
-                       higher_is_better=True, config=config, inputs=file_inputs(curve_path))
+    notes = [
+        f"reused from {curve_path} ({data.get('machine', 'machine not recorded')}, capture {data.get('capture')}): "
+        "one training run per preset, so there is no spread (n = 1 per point)"
+    ]
+    method = (
+        "held-out PSNR (dB) of the views fit-nerf holds out, against cumulative training seconds at that step"
+    )
+    return make_result(
+        "nerf-steps",
+        "fit-nerf steps",
+        "training seconds",
+        "held-out PSNR (dB)",
+        points,
+        method,
+        notes,
+        higher_is_better=True,
+        config=config,
+        inputs=file_inputs(curve_path),
+    )
 
 
 def sweep_device(data_path, config: TradeoffConfig, on_progress=None) -> dict:
@@ -568,9 +777,22 @@ def sweep_device(data_path, config: TradeoffConfig, on_progress=None) -> dict:
         local = dataclasses.replace(config, device=device)
         with _torch_threads(config.threads if device == "cpu" else None):
             points.append(rollout_point(device, simulator, scenes, local, on_progress))
-    notes = [] if "cuda" in devices else [f"cuda: {NO_GPU} (torch.cuda.is_available() is False); only the CPU was measured"]
-    result = make_result("device", "torch device", "seconds per rollout step", f"translation RMSE after {config.steps} steps (m)",
-                         points, ROLLOUT_METHOD, notes, config=config, inputs=file_inputs(data_path))
+    notes = (
+        []
+        if "cuda" in devices
+        else [f"cuda: {NO_GPU} (torch.cuda.is_available() is False); only the CPU was measured"]
+    )
+    result = make_result(
+        "device",
+        "torch device",
+        "seconds per rollout step",
+        f"translation RMSE after {config.steps} steps (m)",
+        points,
+        ROLLOUT_METHOD,
+        notes,
+        config=config,
+        inputs=file_inputs(data_path),
+    )
     result["cuda"] = torch.cuda.get_device_name(0) if "cuda" in devices else NO_GPU
     return result
 

@@ -95,7 +95,9 @@ class Trajectory:
             positions=self.positions[start:stop],
             quaternions=self.quaternions[start:stop],
             velocities=None if self.velocities is None else self.velocities[start:stop],
-            angular_velocities=None if self.angular_velocities is None else self.angular_velocities[start:stop],
+            angular_velocities=None
+            if self.angular_velocities is None
+            else self.angular_velocities[start:stop],
             extras={},
         )
 
@@ -215,7 +217,16 @@ def _read_unguarded(path: Path, trajectory_ids) -> TrajectoryFile:
             data = _read_open_file(f, str(path), trajectory_ids)
     except FormatError:
         raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError, MemoryError) as error:
+    except (
+        OSError,
+        KeyError,
+        ValueError,
+        TypeError,
+        RuntimeError,
+        IndexError,
+        AttributeError,
+        MemoryError,
+    ) as error:
         # h5py reports damaged files with any of these, depending on where the damage is
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise FormatError(f"{path}: not a readable HDF5 trajectory file ({reason})") from None
@@ -242,7 +253,9 @@ def _check_global_heaps(path: Path) -> None:
             start = data.find(b"GCOL")
             while start >= 0:
                 if not _global_heap_walk_ends(data, start, length_size):
-                    raise FormatError(f"{path}: not a readable HDF5 trajectory file (damaged global heap at byte {start})")
+                    raise FormatError(
+                        f"{path}: not a readable HDF5 trajectory file (damaged global heap at byte {start})"
+                    )
                 start = data.find(b"GCOL", start + 4)
 
 
@@ -327,7 +340,9 @@ def _read_one(group, where: str) -> Trajectory:
     for field in required:
         if field not in group:
             raise FormatError(f"{where}: missing field {field!r}")
-    names = np.array([_plain(n) for n in np.atleast_1d(_read_dataset(group, "mesh_names", where))], dtype=object)
+    names = np.array(
+        [_plain(n) for n in np.atleast_1d(_read_dataset(group, "mesh_names", where))], dtype=object
+    )
     values = {field: _read_dataset(group, field, where) for field in required[1:]}
     velocities = {field: _read_dataset(group, field, where) for field in _VELOCITY_FIELDS if field in group}
     known = {*required, *_VELOCITY_FIELDS}
@@ -350,7 +365,9 @@ def _read_dataset(group, field: str, where: str) -> np.ndarray:
         raise FormatError(f"{where}: {field!r} is not a dataset")
     nbytes = int(np.prod(dataset.shape, dtype=np.float64) * dataset.dtype.itemsize) if dataset.shape else 0
     if nbytes > _SMALL_DATASET_BYTES and nbytes > _MOST_EXPANSION * dataset.id.get_storage_size():
-        raise FormatError(f"{where}: field {field!r} claims shape {dataset.shape} but the file stores almost none of it")
+        raise FormatError(
+            f"{where}: field {field!r} claims shape {dataset.shape} but the file stores almost none of it"
+        )
     return dataset[()]
 
 
@@ -380,7 +397,9 @@ def _validate(data: TrajectoryFile, where: str) -> None:
 def _validate_mesh(mesh: Mesh, where: str) -> None:
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.dtype.kind != "f":
-        raise FormatError(f"{where}: field 'vertices' must be (V, 3) float, got {vertices.shape} {vertices.dtype}")
+        raise FormatError(
+            f"{where}: field 'vertices' must be (V, 3) float, got {vertices.shape} {vertices.dtype}"
+        )
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu":
         raise FormatError(f"{where}: field 'faces' must be (F, 3) int, got {faces.shape} {faces.dtype}")
     if len(faces) == 0:
@@ -400,7 +419,9 @@ def _validate_trajectory(t: Trajectory, meshes: dict, where: str) -> None:
         raise FormatError(f"{where}: field 'positions' must be (T, O, 3), got {positions.shape}")
     frames, objects = positions.shape[:2]
     if quaternions.shape != (frames, objects, 4):
-        raise FormatError(f"{where}: field 'quaternions' must be {(frames, objects, 4)}, got {quaternions.shape}")
+        raise FormatError(
+            f"{where}: field 'quaternions' must be {(frames, objects, 4)}, got {quaternions.shape}"
+        )
     for field, value in (("positions", positions), ("quaternions", quaternions)):
         if value.dtype.kind != "f":
             raise FormatError(f"{where}: field {field!r} must be float, got {value.dtype}")
@@ -428,7 +449,9 @@ def _validate_velocities(t: Trajectory, where: str) -> None:
     for field in present:
         value = np.asarray(getattr(t, field))
         if value.shape != t.positions.shape or value.dtype.kind != "f":
-            raise FormatError(f"{where}: field {field!r} must be float {tuple(t.positions.shape)}, got {value.shape} {value.dtype}")
+            raise FormatError(
+                f"{where}: field {field!r} must be float {tuple(t.positions.shape)}, got {value.shape} {value.dtype}"
+            )
         bad = ~np.isfinite(value)
         if bad.any():
             frame, obj = np.argwhere(bad)[0][:2]

@@ -91,20 +91,28 @@ def matrix_to_quat(matrices):
     """
     m = np.asarray(matrices, dtype=np.float64)
     m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    twice_abs_components = np.sqrt(np.maximum(0.0, np.stack(
-        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
-        axis=-1,
-    )))
+    twice_abs_components = np.sqrt(
+        np.maximum(
+            0.0,
+            np.stack(
+                [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22],
+                axis=-1,
+            ),
+        )
+    )
     wx, wy, wz = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
     xy, xz, yz = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1]
     square = twice_abs_components**2
     # Row k holds 4 q_k q: dividing by 2 * (2 |q_k|) gives ±q.
-    candidates = np.stack([
-        np.stack([square[..., 0], wx, wy, wz], axis=-1),
-        np.stack([wx, square[..., 1], xy, xz], axis=-1),
-        np.stack([wy, xy, square[..., 2], yz], axis=-1),
-        np.stack([wz, xz, yz, square[..., 3]], axis=-1),
-    ], axis=-2) / (2.0 * np.maximum(twice_abs_components, 0.1)[..., None])
+    candidates = np.stack(
+        [
+            np.stack([square[..., 0], wx, wy, wz], axis=-1),
+            np.stack([wx, square[..., 1], xy, xz], axis=-1),
+            np.stack([wy, xy, square[..., 2], yz], axis=-1),
+            np.stack([wz, xz, yz, square[..., 3]], axis=-1),
+        ],
+        axis=-2,
+    ) / (2.0 * np.maximum(twice_abs_components, 0.1)[..., None])
     best = np.argmax(twice_abs_components, axis=-1)[..., None, None]
     quaternions = quat_normalize(np.take_along_axis(candidates, best, axis=-2)[..., 0, :])
     return np.where(quaternions[..., :1] < 0, -quaternions, quaternions)
@@ -181,12 +189,15 @@ def random_quaternions(rng, count):
     """
     u1, u2, u3 = rng.random((3, count))
     root_1, root_2 = np.sqrt(1.0 - u1), np.sqrt(u1)
-    quaternions = np.stack([
-        root_2 * np.cos(2 * np.pi * u3),
-        root_1 * np.sin(2 * np.pi * u2),
-        root_1 * np.cos(2 * np.pi * u2),
-        root_2 * np.sin(2 * np.pi * u3),
-    ], axis=-1)
+    quaternions = np.stack(
+        [
+            root_2 * np.cos(2 * np.pi * u3),
+            root_1 * np.sin(2 * np.pi * u2),
+            root_1 * np.cos(2 * np.pi * u2),
+            root_2 * np.sin(2 * np.pi * u3),
+        ],
+        axis=-1,
+    )
     return np.where(quaternions[:, :1] < 0, -quaternions, quaternions)
 
 

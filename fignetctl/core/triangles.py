@@ -81,11 +81,13 @@ def _closest_point_on_segment_cf(points, starts, ends):
 
 def _closest_point_on_edges_cf(points, a, b, c):
     """Closest point of the union of the three edges of triangles abc (component-first)."""
-    candidates = np.stack([
-        _closest_point_on_segment_cf(points, a, b),
-        _closest_point_on_segment_cf(points, b, c),
-        _closest_point_on_segment_cf(points, c, a),
-    ])
+    candidates = np.stack(
+        [
+            _closest_point_on_segment_cf(points, a, b),
+            _closest_point_on_segment_cf(points, b, c),
+            _closest_point_on_segment_cf(points, c, a),
+        ]
+    )
     offsets = candidates - points[None]
     best = np.argmin(_dot(offsets.swapaxes(0, 1), offsets.swapaxes(0, 1)), axis=0)
     return np.take_along_axis(candidates, best[None, None], axis=0)[0]

@@ -59,7 +59,9 @@ def _read_frames(video_path):
     capture = cv2.VideoCapture(str(video_path))
     try:
         if not capture.isOpened():
-            raise FignetError(f"{video_path}: OpenCV cannot open this video (try an .mp4 or convert it with ffmpeg)")
+            raise FignetError(
+                f"{video_path}: OpenCV cannot open this video (try an .mp4 or convert it with ffmpeg)"
+            )
         index = 0
         while True:
             ok, frame = capture.read()
@@ -73,7 +75,9 @@ def _read_frames(video_path):
         capture.release()
 
 
-def pick_frames(video_path, folder, every: int = 10, blur_ratio: float = 0.5, neighbours: int = 2) -> list[PickedFrame]:
+def pick_frames(
+    video_path, folder, every: int = 10, blur_ratio: float = 0.5, neighbours: int = 2
+) -> list[PickedFrame]:
     """Write the sharpest frame of each window of `every` frames into `folder` as PNG, minus
     windows that are all blurred; return the kept frames (without their pixels).
 
@@ -96,7 +100,13 @@ def pick_frames(video_path, folder, every: int = 10, blur_ratio: float = 0.5, ne
     kept = drop_blurred(picks, blur_ratio, neighbours)
     for pick in set(p.name for p in picks) - set(p.name for p in kept):
         (folder / pick).unlink()
-    log.info("picked %d frames from %s (every %d; %d blurred windows dropped)", len(kept), video_path, every, len(picks) - len(kept))
+    log.info(
+        "picked %d frames from %s (every %d; %d blurred windows dropped)",
+        len(kept),
+        video_path,
+        every,
+        len(picks) - len(kept),
+    )
     return kept
 
 
@@ -130,7 +140,9 @@ class StagedFolder:
     def __init__(self, target):
         self.target = Path(target)
         self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp", dir=self.target.parent))
+        self.path = Path(
+            tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp", dir=self.target.parent)
+        )
         os.chmod(self.path, 0o777 & ~_umask())
 
     def commit(self) -> Path:

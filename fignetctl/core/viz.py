@@ -26,8 +26,16 @@ from fignetctl.errors import FignetError
 # Tableau-like palette, RGB; dynamic objects take these in turn, static ones are grey.
 OBJECT_COLOURS = np.array(
     [
-        (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-        (140, 86, 75), (227, 119, 194), (188, 189, 34), (23, 190, 207), (127, 127, 127),
+        (31, 119, 180),
+        (255, 127, 14),
+        (44, 160, 44),
+        (214, 39, 40),
+        (148, 103, 189),
+        (140, 86, 75),
+        (227, 119, 194),
+        (188, 189, 34),
+        (23, 190, 207),
+        (127, 127, 127),
     ],
     np.float64,
 )
@@ -100,7 +108,9 @@ def look_at_camera(eye, target, size, fov_y_deg: float = 40.0) -> Camera:
     return Camera(np.stack([right, down, forward]), eye, focal, int(size[0]), int(size[1]))
 
 
-def fit_camera(data, trajectory_id, size=(480, 360), azimuth_deg=-60.0, elevation_deg=35.0, fov_y_deg=40.0) -> Camera:
+def fit_camera(
+    data, trajectory_id, size=(480, 360), azimuth_deg=-60.0, elevation_deg=35.0, fov_y_deg=40.0
+) -> Camera:
     """A fixed camera that keeps every dynamic object of the trajectory in view at all frames.
 
     It looks at the centre of the box swept by the objects (down to the floor) from the
@@ -113,9 +123,15 @@ def fit_camera(data, trajectory_id, size=(480, 360), azimuth_deg=-60.0, elevatio
     half_fov_x = math.atan(math.tan(half_fov_y) * size[0] / size[1])
     azimuth, elevation = math.radians(azimuth_deg), math.radians(elevation_deg)
     direction = np.array(
-        [math.cos(azimuth) * math.cos(elevation), math.sin(azimuth) * math.cos(elevation), math.sin(elevation)]
+        [
+            math.cos(azimuth) * math.cos(elevation),
+            math.sin(azimuth) * math.cos(elevation),
+            math.sin(elevation),
+        ]
     )
-    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+    corners = np.array(
+        [[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])]
+    )
 
     def camera_at(distance):
         return look_at_camera(centre + distance * direction, centre, size, fov_y_deg)
@@ -329,28 +345,38 @@ def _grid_extent(low: np.ndarray, high: np.ndarray) -> tuple:
     return grid_low, grid_high, step
 
 
-def render_frame(data: TrajectoryFile, trajectory_id, frame: int = -1, size=(480, 360), camera: Camera | None = None) -> np.ndarray:
+def render_frame(
+    data: TrajectoryFile, trajectory_id, frame: int = -1, size=(480, 360), camera: Camera | None = None
+) -> np.ndarray:
     """(H, W, 3) uint8 RGB preview of one frame (negative frames count from the end)."""
     renderer = PreviewRenderer(data, trajectory_id, size, camera)
     frames = renderer.trajectory.num_frames
     if not -frames <= frame < frames:
-        raise FignetError(f"frame {frame} is outside the trajectory's {frames} frames (0..{frames - 1}, or -1 for the last)")
+        raise FignetError(
+            f"frame {frame} is outside the trajectory's {frames} frames (0..{frames - 1}, or -1 for the last)"
+        )
     return renderer.render(frame % frames)
 
 
-def write_preview_png(data: TrajectoryFile, trajectory_id, path_png, frame: int = -1, size=(480, 360)) -> Path:
+def write_preview_png(
+    data: TrajectoryFile, trajectory_id, path_png, frame: int = -1, size=(480, 360)
+) -> Path:
     """Render one frame and write it as a PNG, atomically."""
     import cv2
 
     image = render_frame(data, trajectory_id, frame, size)
     path_png = Path(path_png)
     with atomic_path(path_png, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        if not cv2.imwrite(
+            str(tmp), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 9]
+        ):
             raise FignetError(f"{path_png}: OpenCV could not write the PNG")
     return path_png
 
 
-def render_preview_video(data: TrajectoryFile, trajectory_id, path_mp4, size=(480, 360), fps=None, progress=None) -> Path:
+def render_preview_video(
+    data: TrajectoryFile, trajectory_id, path_mp4, size=(480, 360), fps=None, progress=None
+) -> Path:
     """Render every frame of a trajectory to an H.264 mp4 (media.py), atomically.
 
     fps : frames per second of the video; default 1 / dt, so the video plays in real time
@@ -362,7 +388,10 @@ def render_preview_video(data: TrajectoryFile, trajectory_id, path_mp4, size=(48
     fps = float(fps) if fps else 1.0 / float(data.dt)
     frames = range(renderer.trajectory.num_frames)
     path_mp4 = Path(path_mp4)
-    with atomic_path(path_mp4, suffix=".mp4") as tmp, Mp4Writer(tmp, fps, int(size[0]), int(size[1])) as writer:
+    with (
+        atomic_path(path_mp4, suffix=".mp4") as tmp,
+        Mp4Writer(tmp, fps, int(size[0]), int(size[1])) as writer,
+    ):
         for frame in progress(frames) if progress else frames:
             writer.write(renderer.render(frame))
     return path_mp4
@@ -426,7 +455,9 @@ def _log_traces(rec, rr, trajectory: Trajectory, root: str) -> None:
             continue
         rec.log(
             f"{root}/traces/{index:02d}_{name}",
-            rr.LineStrips3D([np.asarray(trajectory.positions[:, index], np.float32)], colors=[colours[index]], radii=0.01),
+            rr.LineStrips3D(
+                [np.asarray(trajectory.positions[:, index], np.float32)], colors=[colours[index]], radii=0.01
+            ),
             static=True,
         )
 
@@ -473,14 +504,18 @@ def _blueprint(entity_root: str):
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin=entity_root, contents=[f"{entity_root}/objects/**", f"{entity_root}/traces/**"]),
+            rrb.Spatial3DView(
+                origin=entity_root, contents=[f"{entity_root}/objects/**", f"{entity_root}/traces/**"]
+            ),
             rrb.TimeSeriesView(origin=f"{entity_root}/plots"),
             column_shares=[2, 1],
         )
     )
 
 
-def log_trajectory_to_rerun(data: TrajectoryFile, trajectory_id, path_rrd, entity_root: str = "world") -> Path:
+def log_trajectory_to_rerun(
+    data: TrajectoryFile, trajectory_id, path_rrd, entity_root: str = "world"
+) -> Path:
     """Write one trajectory to a rerun recording file (.rrd), atomically.
 
     Open it with `rerun FILE.rrd`: the meshes move on the "frame" and "time" timelines,

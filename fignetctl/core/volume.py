@@ -79,7 +79,9 @@ def validate_volume(volume: Volume, where: str = "volume") -> Volume:
             raise FormatError(f"{where}: field {field!r} is empty")
     if not isinstance(volume.settings, dict):
         raise FormatError(f"{where}: field 'settings' must be a json object")
-    return dataclasses.replace(volume, **values, object_mesh=str(volume.object_mesh), environment_mesh=str(volume.environment_mesh))
+    return dataclasses.replace(
+        volume, **values, object_mesh=str(volume.object_mesh), environment_mesh=str(volume.environment_mesh)
+    )
 
 
 def write_volume(path, volume: Volume) -> Path:
@@ -101,10 +103,14 @@ def write_volume(path, volume: Volume) -> Path:
 def read_volume(path) -> Volume:
     """Read and check volume.npz; any problem is a one-line FormatError."""
     path = Path(path)
-    arrays = read_npz_document(path, "volume.npz", FORMAT, FORMAT_VERSION, (*_VECTORS, "object_mesh", "environment_mesh"))
+    arrays = read_npz_document(
+        path, "volume.npz", FORMAT, FORMAT_VERSION, (*_VECTORS, "object_mesh", "environment_mesh")
+    )
     for field in ("object_mesh", "environment_mesh", *(("settings",) if "settings" in arrays else ())):
         if arrays[field].shape != () or arrays[field].dtype.kind != "U":
-            raise FormatError(f"{path}: field {field!r} must be one string, got {arrays[field].shape} {arrays[field].dtype}")
+            raise FormatError(
+                f"{path}: field {field!r} must be one string, got {arrays[field].shape} {arrays[field].dtype}"
+            )
     try:
         settings = json.loads(str(arrays["settings"])) if "settings" in arrays else {}
     except (ValueError, RecursionError):

@@ -155,7 +155,9 @@ def camera_up(cameras: Cameras) -> np.ndarray:
     up = -cameras.c2w[:, :3, 1].mean(axis=0)
     norm = np.linalg.norm(up)
     if norm < 1e-6:
-        raise FignetError("the cameras' up vectors cancel out; gravity cannot come from them (use --gravity plane)")
+        raise FignetError(
+            "the cameras' up vectors cancel out; gravity cannot come from them (use --gravity plane)"
+        )
     return up / norm
 
 
@@ -247,12 +249,16 @@ def scale_factor(cameras: Cameras, rotation, origin, settings: AlignmentSettings
         index_a, index_b = cameras.index_of(str(name_a)), cameras.index_of(str(name_b))
         distance = float(np.linalg.norm(levelled[index_a] - levelled[index_b]))
         if distance < 1e-9:
-            raise FignetError(f"cameras {name_a} and {name_b} are at the same place; choose two that are apart")
+            raise FignetError(
+                f"cameras {name_a} and {name_b} are at the same place; choose two that are apart"
+            )
         return float(metres) / distance, f"distance {name_a}–{name_b} = {metres} m"
     height = settings.camera_height if settings.camera_height is not None else DEFAULT_CAMERA_HEIGHT
     mean_height = float(levelled[:, 2].mean())
     if mean_height <= 1e-9:
-        raise FignetError("the cameras are not above the support plane on average; use --gravity cameras or --baseline")
+        raise FignetError(
+            "the cameras are not above the support plane on average; use --gravity cameras or --baseline"
+        )
     source = "mean camera height" + (" (default)" if settings.camera_height is None else "")
     return height / mean_height, f"{source} = {height} m"
 

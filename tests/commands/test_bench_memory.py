@@ -24,7 +24,20 @@ def bench(tmp_path_factory):
     folder = tmp_path_factory.mktemp("bench")
     data = write_trajectories(folder / "box.h5", box_drop_file(frames=8, height=0.6))
     out = folder / "bench.json"
-    args = ["bench-memory", str(data), "--size", "tiny", "--samples", "2", "--repeats", "2", "--json", str(out), "--markdown", str(folder / "bench.md")]
+    args = [
+        "bench-memory",
+        str(data),
+        "--size",
+        "tiny",
+        "--samples",
+        "2",
+        "--repeats",
+        "2",
+        "--json",
+        str(out),
+        "--markdown",
+        str(folder / "bench.md"),
+    ]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
     return folder, data, json.loads(out.read_text()), result.output
@@ -52,7 +65,9 @@ def expected_node_node_edges(data_path, frame):
     scene = scenes_from_file(data_path, SimulatorConfig(max_faces_per_object=256), EVALUATION_STATIC_REACH)[0]
     geometry = scene.geometry
     triangles = geometry.world_vertices(scene.positions[frame], scene.quaternions[frame])[geometry.faces]
-    pair_i, pair_j = brute_force_face_pairs(triangles, geometry.face_object, GraphConfig().collision_radius, geometry.static)
+    pair_i, pair_j = brute_force_face_pairs(
+        triangles, geometry.face_object, GraphConfig().collision_radius, geometry.static
+    )
     floor_faces = [f for f in np.concatenate([pair_i, pair_j]) if geometry.static[geometry.face_object[f]]]
     floor_vertices = set(geometry.faces[floor_faces].ravel().tolist())
     floor_edges = unique_undirected_edges(geometry.faces[geometry.face_object == 0])
@@ -82,7 +97,9 @@ def test_memory_and_times_are_positive_and_memory_includes_the_model(bench):
             assert model["step_memory"]["peak_mib"]["mean"] > model_mib
             above = model[kind]["profiler_peak_above_model_mib"]["mean"]
             assert model[kind]["peak_mib"]["mean"] == pytest.approx(model_mib + above)
-        assert model["train_memory"]["peak_mib"]["mean"] > model["step_memory"]["peak_mib"]["mean"]  # activations kept for backward
+        assert (
+            model["train_memory"]["peak_mib"]["mean"] > model["step_memory"]["peak_mib"]["mean"]
+        )  # activations kept for backward
         for phase in benchmark.TIMINGS:
             stat = model["times_ms"][phase]
             assert stat["n"] == 4 and 0 < stat["q25"] <= stat["median"] <= stat["q75"] < 60_000
@@ -94,10 +111,18 @@ def test_ratios_follow_the_summaries_and_markdown_shows_them(bench):
     star, full = box["models"]["FIGNet*"], box["models"]["FIGNet"]
     ratios = box["ratios"]
     assert ratios["edges"] == pytest.approx(star["edges"]["total"]["mean"] / full["edges"]["total"]["mean"])
-    assert ratios["step_memory"] == pytest.approx(star["step_memory"]["peak_mib"]["mean"] / full["step_memory"]["peak_mib"]["mean"])
-    assert ratios["train_memory"] == pytest.approx(star["train_memory"]["peak_mib"]["mean"] / full["train_memory"]["peak_mib"]["mean"])
-    assert ratios["step_time"] == pytest.approx(star["times_ms"]["step_ms"]["median"] / full["times_ms"]["step_ms"]["median"])
-    assert ratios["train_time"] == pytest.approx(star["times_ms"]["train_step_ms"]["median"] / full["times_ms"]["train_step_ms"]["median"])
+    assert ratios["step_memory"] == pytest.approx(
+        star["step_memory"]["peak_mib"]["mean"] / full["step_memory"]["peak_mib"]["mean"]
+    )
+    assert ratios["train_memory"] == pytest.approx(
+        star["train_memory"]["peak_mib"]["mean"] / full["train_memory"]["peak_mib"]["mean"]
+    )
+    assert ratios["step_time"] == pytest.approx(
+        star["times_ms"]["step_ms"]["median"] / full["times_ms"]["step_ms"]["median"]
+    )
+    assert ratios["train_time"] == pytest.approx(
+        star["times_ms"]["train_step_ms"]["median"] / full["times_ms"]["train_step_ms"]["median"]
+    )
     assert 0 < ratios["edges"] < 1 and ratios["step_memory"] < 1  # no surface edges: fewer edges, less memory
     assert result["paper"]["ratios_movi_b"]["edges"] == pytest.approx(8630 / 24514)
     assert "| paper, MOVi-B | 0.35 | 0.79 | – | 0.74 |" in output
@@ -121,7 +146,10 @@ def test_bad_data_is_one_line_error(tmp_path, bad):
     else:
         write_trajectories(path, box_drop_file(frames=2))
     out = tmp_path / "bench.json"
-    result = CliRunner().invoke(cli, ["bench-memory", str(path), "--size", "tiny", "--samples", "1", "--repeats", "1", "--json", str(out)])
+    result = CliRunner().invoke(
+        cli,
+        ["bench-memory", str(path), "--size", "tiny", "--samples", "1", "--repeats", "1", "--json", str(out)],
+    )
     assert result.exit_code == 1
     assert result.output.startswith("Error: ") and result.output.count("\n") == 1
     assert "Traceback" not in result.output and not out.exists()
@@ -187,7 +215,10 @@ def check_profiler_against_reference(simulators, scene):
         workload = benchmark.make_workload(simulator, scene, 1, torch.Generator().manual_seed(0), "cpu")
         benchmark.fit_normalizers(workload, "cpu")
         resident = [*simulator.parameters(), *simulator.buffers()]
-        for run in (lambda: benchmark.run_network(workload, "cpu"), lambda: benchmark.run_training_step(workload, "cpu")):
+        for run in (
+            lambda: benchmark.run_network(workload, "cpu"),
+            lambda: benchmark.run_training_step(workload, "cpu"),
+        ):
             run()
             reference = LiveStorageBytes(resident)
             with reference:
@@ -201,8 +232,12 @@ def test_frames_are_drawn_from_the_middle_and_in_contact_first():
     assert list(benchmark.middle_frames(121)) == list(range(30, 91))
     from fignetctl.core.model.scene_data import scene_from_trajectory
 
-    far = scene_from_trajectory(box_drop_file(frames=12, height=5.0), "00000", SimulatorConfig(max_faces_per_object=256))
-    near = scene_from_trajectory(box_drop_file(frames=12, height=0.6), "00000", SimulatorConfig(max_faces_per_object=256))
+    far = scene_from_trajectory(
+        box_drop_file(frames=12, height=5.0), "00000", SimulatorConfig(max_faces_per_object=256)
+    )
+    near = scene_from_trajectory(
+        box_drop_file(frames=12, height=0.6), "00000", SimulatorConfig(max_faces_per_object=256)
+    )
     pairs = benchmark.sample_frames([far, near], 3, np.random.default_rng(0), 0.2)
     assert [(i, contact) for i, _, contact in pairs] == [(1, True)] * 3
     pairs = benchmark.sample_frames([far], 2, np.random.default_rng(0), 0.2)

@@ -17,7 +17,10 @@ def extracted(tmp_path):
     floor = trimesh.creation.box(extents=[0.6, 0.6, 0.05])
     floor.apply_translation([0.1, -0.2, -0.025])
     floor.export(tmp_path / "environment.obj")
-    write_volume(tmp_path / "volume.npz", Volume(origin - 0.06, origin + 0.06, origin, origin - [0.4, 0.4, 0.2], origin + [0.4, 0.4, 0.1]))
+    write_volume(
+        tmp_path / "volume.npz",
+        Volume(origin - 0.06, origin + 0.06, origin, origin - [0.4, 0.4, 0.2], origin + [0.4, 0.4, 0.1]),
+    )
     return tmp_path
 
 
@@ -26,7 +29,16 @@ def run(*args):
 
 
 def test_default_drop(extracted):
-    result = run("build-graph", extracted / "volume.npz", "--drop-height", "0.2", "--delta-z", "0.01", "-o", extracted / "scene.h5")
+    result = run(
+        "build-graph",
+        extracted / "volume.npz",
+        "--drop-height",
+        "0.2",
+        "--delta-z",
+        "0.01",
+        "-o",
+        extracted / "scene.h5",
+    )
     assert result.exit_code == 0, result.output
     data = read_trajectories(extracted / "scene.h5")
     assert data.dt == pytest.approx(1 / 30)
@@ -40,8 +52,23 @@ def test_default_drop(extracted):
 
 
 def test_start_velocity_duplicate_and_properties(extracted):
-    result = run("build-graph", extracted / "volume.npz", "--start", "0.3,0,0.5", "--velocity", "3,0,0", "--duplicate",
-                 "--active-mass", "2", "--passive-friction", "0.9", "--dt", "0.1", "-o", extracted / "scene.h5")
+    result = run(
+        "build-graph",
+        extracted / "volume.npz",
+        "--start",
+        "0.3,0,0.5",
+        "--velocity",
+        "3,0,0",
+        "--duplicate",
+        "--active-mass",
+        "2",
+        "--passive-friction",
+        "0.9",
+        "--dt",
+        "0.1",
+        "-o",
+        extracted / "scene.h5",
+    )
     assert result.exit_code == 0, result.output
     (trajectory,) = read_trajectories(extracted / "scene.h5").trajectories.values()
     assert list(trajectory.static) == [True, True, False]
@@ -56,7 +83,10 @@ def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracte
     from fignetctl.core.model.properties import outside_ranges
     from fignetctl.core.model.runs import load_model
 
-    assert run("build-graph", extracted / "volume.npz", "--duplicate", "-o", extracted / "scene.h5").exit_code == 0
+    assert (
+        run("build-graph", extracted / "volume.npz", "--duplicate", "-o", extracted / "scene.h5").exit_code
+        == 0
+    )
     (trajectory,) = read_trajectories(extracted / "scene.h5").trajectories.values()
     properties = trajectory.properties
     ranges = load_model(name).trained_properties
@@ -64,7 +94,9 @@ def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracte
     assert outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties) == []
     properties[0, 1], properties[2, 0] = 0.5, 1e-3  # the paper's FIGNet* passive friction, active mass
     found = outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties)
-    assert len(found) == 2 and "'environment' has friction 0.5 and restitution 0.5, not a material" in found[0]
+    assert (
+        len(found) == 2 and "'environment' has friction 0.5 and restitution 0.5, not a material" in found[0]
+    )
     assert "'object' has mass 0.001, outside the" in found[1]
     properties[0, 1], properties[2] = 0.3, [1.0, 0.5, 0.5]  # each value between MOVi's two materials
     (found,) = outside_ranges(ranges, trajectory.mesh_names, trajectory.static, properties)
@@ -95,11 +127,17 @@ def test_drop_report_sees_landing_rest_and_penetration():
     positions = np.zeros((frames, 2, 3), np.float32)
     positions[:, 1, 2] = z
     quaternions = np.tile(np.array([1, 0, 0, 0], np.float32), (frames, 2, 1))
-    landed = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)})
+    landed = dataclasses.replace(
+        data,
+        trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)},
+    )
     report = drop_report(landed)
     assert report["min_clearance_m"] == pytest.approx(0.0, abs=1e-5) and report["at_rest"]
     assert report["rest_time_s"] == pytest.approx(19 * data.dt)
     positions = positions.copy()
     positions[20:, 1, 2] = 0.46  # sinks 4 cm into the floor
-    sunk = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)})
+    sunk = dataclasses.replace(
+        data,
+        trajectories={"00000": dataclasses.replace(trajectory, positions=positions, quaternions=quaternions)},
+    )
     assert drop_report(sunk)["min_clearance_m"] == pytest.approx(-0.04, abs=1e-5)

@@ -35,8 +35,18 @@ def views(tmp_path_factory):
 def test_images_to_cameras_in_metres_z_up(views, tmp_path):
     folder, truth = views
     output = tmp_path / "out" / "cameras.npz"
-    result = run("--images", folder, "--camera-height", 0.5, "-o", output,
-                 "--export-transforms", tmp_path / "out" / "transforms.json", "--rerun", tmp_path / "out" / "poses.rrd")
+    result = run(
+        "--images",
+        folder,
+        "--camera-height",
+        0.5,
+        "-o",
+        output,
+        "--export-transforms",
+        tmp_path / "out" / "transforms.json",
+        "--rerun",
+        tmp_path / "out" / "poses.rrd",
+    )
     assert result.exit_code == 0, result.output
     assert str(output) in result.stdout
     cameras = read_cameras(output)
@@ -62,12 +72,30 @@ def test_existing_output_needs_overwrite(views, tmp_path):
 def test_import_transforms_and_cameras_with_gravity_none(views, tmp_path):
     folder, truth = views
     export_transforms_json(tmp_path / "transforms.json", truth, image_prefix=f"{folder}/")
-    result = run("--import-transforms", tmp_path / "transforms.json", "--images", folder, "--gravity", "none", "-o", tmp_path / "a.npz")
+    result = run(
+        "--import-transforms",
+        tmp_path / "transforms.json",
+        "--images",
+        folder,
+        "--gravity",
+        "none",
+        "-o",
+        tmp_path / "a.npz",
+    )
     assert result.exit_code == 0, result.output
     np.testing.assert_allclose(read_cameras(tmp_path / "a.npz").c2w, truth.c2w, atol=1e-12)
     write_cameras(tmp_path / "truth.npz", truth)
     # Re-aligning exact cameras without points: up from the cameras, scale from the true height.
-    result = run("--import-cameras", tmp_path / "truth.npz", "--images", folder, "--camera-height", 0.5, "-o", tmp_path / "b.npz")
+    result = run(
+        "--import-cameras",
+        tmp_path / "truth.npz",
+        "--images",
+        folder,
+        "--camera-height",
+        0.5,
+        "-o",
+        tmp_path / "b.npz",
+    )
     assert result.exit_code == 0, result.output
     assert "up from cameras" in result.output
     assert read_cameras(tmp_path / "b.npz").centres[:, 2].mean() == pytest.approx(0.5)
@@ -76,7 +104,9 @@ def test_import_transforms_and_cameras_with_gravity_none(views, tmp_path):
 def test_video_to_cameras_and_images_folder(tmp_path):
     frames_dir = tmp_path / "render"
     truth = render_views(frames_dir, count=16, arc_deg=120)
-    writer = cv2.VideoWriter(str(tmp_path / "orbit.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 10, (truth.width, truth.height))
+    writer = cv2.VideoWriter(
+        str(tmp_path / "orbit.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 10, (truth.width, truth.height)
+    )
     for name in truth.image_names:
         writer.write(cv2.imread(str(frames_dir / name)))
     writer.release()
@@ -123,7 +153,9 @@ def test_blank_images_write_nothing(tmp_path):
     folder.mkdir()
     for index in range(5):
         cv2.imwrite(str(folder / f"blank_{index}.png"), np.full((60, 80, 3), 200, np.uint8))
-    result = run("--images", folder, "-o", tmp_path / "cameras.npz", "--export-transforms", tmp_path / "t.json")
+    result = run(
+        "--images", folder, "-o", tmp_path / "cameras.npz", "--export-transforms", tmp_path / "t.json"
+    )
     assert_one_line_error(result, "only 0 of 5 images registered", "--matcher")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["images"]
 
@@ -137,7 +169,9 @@ def test_cameras_that_do_not_match_the_images(tmp_path, views):
         cv2.imwrite(str(other / name), np.zeros((50, 50, 3), np.uint8))
     result = run("--import-cameras", tmp_path / "cameras.npz", "--images", other, "-o", tmp_path / "out.npz")
     assert_one_line_error(result, "do not match")
-    result = run("--import-cameras", tmp_path / "cameras.npz", "--images", tmp_path, "-o", tmp_path / "out.npz")
+    result = run(
+        "--import-cameras", tmp_path / "cameras.npz", "--images", tmp_path, "-o", tmp_path / "out.npz"
+    )
     assert_one_line_error(result, "is not in")
     assert not (tmp_path / "out.npz").exists()
 
@@ -147,7 +181,9 @@ def test_conflicting_inputs(tmp_path, views):
     assert_one_line_error(result, "give one input")
     result = run("-o", tmp_path / "c.npz")
     assert_one_line_error(result, "give one input")
-    result = run("--images", views[0], "--camera-height", 1, "--baseline", "a", "b", 1, "-o", tmp_path / "c.npz")
+    result = run(
+        "--images", views[0], "--camera-height", 1, "--baseline", "a", "b", 1, "-o", tmp_path / "c.npz"
+    )
     assert_one_line_error(result, "--baseline")
 
 

@@ -35,8 +35,22 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     from fignetctl.core.volume import read_volume
 
     name = json.loads((capture / "prompts.json").read_text())["objects"][0]["name"]
-    result = run("extract-mesh", capture / "nerf.pt", "--cameras", capture / "ground_truth" / "cameras.npz",
-                 "--prompts", capture / "prompts.json", "--object", name, "--faces", "200", "--resolution", "48", "-o", tmp_path / "out")
+    result = run(
+        "extract-mesh",
+        capture / "nerf.pt",
+        "--cameras",
+        capture / "ground_truth" / "cameras.npz",
+        "--prompts",
+        capture / "prompts.json",
+        "--object",
+        name,
+        "--faces",
+        "200",
+        "--resolution",
+        "48",
+        "-o",
+        tmp_path / "out",
+    )
     assert result.exit_code == 0, result.output
     volume = read_volume(tmp_path / "out" / "volume.npz")
     obj = trimesh.load(tmp_path / "out" / "object.obj", force="mesh")
@@ -45,10 +59,20 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     assert np.allclose(obj.bounds.mean(0) + volume.origin, truth.bounds.mean(0), atol=0.02)
     assert np.allclose(obj.extents, truth.extents, atol=0.03)
     environment = trimesh.load(tmp_path / "out" / "environment.obj", force="mesh")
-    assert environment.bounds[0][2] < truth.bounds[0][2] < environment.bounds[1][2] + 0.01  # the support under it
+    assert (
+        environment.bounds[0][2] < truth.bounds[0][2] < environment.bounds[1][2] + 0.01
+    )  # the support under it
     assert list((tmp_path / "out" / "masks").glob("*.png"))
-    again = run("extract-mesh", capture / "nerf.pt", "--cameras", capture / "ground_truth" / "cameras.npz",
-                "--box", "0,0,0,0.1,0.1,0.1", "-o", tmp_path / "out")
+    again = run(
+        "extract-mesh",
+        capture / "nerf.pt",
+        "--cameras",
+        capture / "ground_truth" / "cameras.npz",
+        "--box",
+        "0,0,0,0.1,0.1,0.1",
+        "-o",
+        tmp_path / "out",
+    )
     assert again.exit_code == 2 and "--overwrite" in again.output
 
 
@@ -65,7 +89,15 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     ],
 )
 def test_bad_input_is_one_line(capture, tmp_path, args, message):
-    result = run("extract-mesh", capture / "nerf.pt", "--cameras", capture / "ground_truth" / "cameras.npz", *args, "-o", tmp_path / "o")
+    result = run(
+        "extract-mesh",
+        capture / "nerf.pt",
+        "--cameras",
+        capture / "ground_truth" / "cameras.npz",
+        *args,
+        "-o",
+        tmp_path / "o",
+    )
     assert result.exit_code != 0
     assert message in result.output, result.output
     assert "Traceback" not in result.output
@@ -73,8 +105,18 @@ def test_bad_input_is_one_line(capture, tmp_path, args, message):
 
 def test_prompt_on_empty_space(capture, tmp_path):
     # The top-left pixel of view 0 sees the backdrop, outside the NeRF's box: no density.
-    result = run("extract-mesh", capture / "nerf.pt", "--cameras", capture / "ground_truth" / "cameras.npz",
-                 "--prompt", "0:0,0", "--prompt", "1:0,0", "-o", tmp_path / "o")
+    result = run(
+        "extract-mesh",
+        capture / "nerf.pt",
+        "--cameras",
+        capture / "ground_truth" / "cameras.npz",
+        "--prompt",
+        "0:0,0",
+        "--prompt",
+        "1:0,0",
+        "-o",
+        tmp_path / "o",
+    )
     assert result.exit_code == 1 and "empty space" in result.output, result.output
 
 
@@ -87,8 +129,22 @@ def test_user_masks_from_ground_truth(capture, tmp_path):
     object_id = json.loads((capture / "prompts.json").read_text())["objects"][0]["id"]
     for name, mask in list(zip(truth["image_names"], truth["masks"]))[:4]:
         if (mask == object_id).sum() > 20:
-            cv2.imwrite(str(masks / (name.rsplit(".", 1)[0] + ".png")), (mask == object_id).astype(np.uint8) * 255)
-    result = run("extract-mesh", capture / "nerf.pt", "--cameras", capture / "ground_truth" / "cameras.npz",
-                 "--masks", masks, "--resolution", "40", "--faces", "100", "-o", tmp_path / "out")
+            cv2.imwrite(
+                str(masks / (name.rsplit(".", 1)[0] + ".png")), (mask == object_id).astype(np.uint8) * 255
+            )
+    result = run(
+        "extract-mesh",
+        capture / "nerf.pt",
+        "--cameras",
+        capture / "ground_truth" / "cameras.npz",
+        "--masks",
+        masks,
+        "--resolution",
+        "40",
+        "--faces",
+        "100",
+        "-o",
+        tmp_path / "out",
+    )
     assert result.exit_code == 0, result.output
     assert (tmp_path / "out" / "object.obj").is_file()

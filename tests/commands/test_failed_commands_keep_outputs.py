@@ -17,33 +17,77 @@ def _corrupt(path, content=GARBAGE):
 
 
 def _rollout(tmp):
-    return ["rollout", _corrupt(tmp / "scene.h5"), "--steps", "2", "-o", tmp / "out.h5", "--overwrite"], tmp / "out.h5"
+    return [
+        "rollout",
+        _corrupt(tmp / "scene.h5"),
+        "--steps",
+        "2",
+        "-o",
+        tmp / "out.h5",
+        "--overwrite",
+    ], tmp / "out.h5"
 
 
 def _build_graph(tmp):
-    return ["build-graph", _corrupt(tmp / "volume.npz"), "-o", tmp / "scene.h5", "--overwrite"], tmp / "scene.h5"
+    return [
+        "build-graph",
+        _corrupt(tmp / "volume.npz"),
+        "-o",
+        tmp / "scene.h5",
+        "--overwrite",
+    ], tmp / "scene.h5"
 
 
 def _extract_mesh(tmp):
     (tmp / "out").mkdir()
-    arguments = ["extract-mesh", _corrupt(tmp / "nerf.pt"), "--cameras", _corrupt(tmp / "cameras.npz"),
-                 "--box", "0,0,0,1,1,1", "-o", tmp / "out", "--overwrite"]
+    arguments = [
+        "extract-mesh",
+        _corrupt(tmp / "nerf.pt"),
+        "--cameras",
+        _corrupt(tmp / "cameras.npz"),
+        "--box",
+        "0,0,0,1,1,1",
+        "-o",
+        tmp / "out",
+        "--overwrite",
+    ]
     return arguments, tmp / "out" / "object.obj"
 
 
 def _fit_nerf(tmp):
     (tmp / "images").mkdir()
-    return ["fit-nerf", tmp / "images", _corrupt(tmp / "cameras.npz"), "-o", tmp / "nerf.pt", "--overwrite"], tmp / "nerf.pt"
+    return [
+        "fit-nerf",
+        tmp / "images",
+        _corrupt(tmp / "cameras.npz"),
+        "-o",
+        tmp / "nerf.pt",
+        "--overwrite",
+    ], tmp / "nerf.pt"
 
 
 def _capture_poses(tmp):
-    arguments = ["capture-poses", "--import-cameras", _corrupt(tmp / "in.npz"), "-o", tmp / "cameras.npz", "--overwrite"]
+    arguments = [
+        "capture-poses",
+        "--import-cameras",
+        _corrupt(tmp / "in.npz"),
+        "-o",
+        tmp / "cameras.npz",
+        "--overwrite",
+    ]
     return arguments, tmp / "cameras.npz"
 
 
 def _rerender(tmp):
-    arguments = ["rerender", _corrupt(tmp / "nerf.pt"), _corrupt(tmp / "volume.npz"), _corrupt(tmp / "rollout.h5"),
-                 "-o", tmp / "video.mp4", "--overwrite"]
+    arguments = [
+        "rerender",
+        _corrupt(tmp / "nerf.pt"),
+        _corrupt(tmp / "volume.npz"),
+        _corrupt(tmp / "rollout.h5"),
+        "-o",
+        tmp / "video.mp4",
+        "--overwrite",
+    ]
     return arguments, tmp / "video.mp4"
 
 
@@ -55,7 +99,9 @@ def _train_resume(tmp):
     return ["train", dataset, "-o", tmp / "model.pt", "--steps", "2", "--resume"], tmp / "model.pt"
 
 
-@pytest.mark.parametrize("command", [_rollout, _build_graph, _extract_mesh, _fit_nerf, _capture_poses, _rerender, _train_resume])
+@pytest.mark.parametrize(
+    "command", [_rollout, _build_graph, _extract_mesh, _fit_nerf, _capture_poses, _rerender, _train_resume]
+)
 def test_failed_command_keeps_the_existing_output(tmp_path, command):
     arguments, output = command(tmp_path)
     if output.name == "model.pt":

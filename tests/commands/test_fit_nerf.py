@@ -18,7 +18,21 @@ def fitted(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fit")
     images, cameras, _ = write_synthetic_scene(folder)
     nerf = folder / "nerf.pt"
-    result = CliRunner().invoke(cli, ["fit-nerf", str(images), str(cameras), "-o", str(nerf), "--steps", "3", *FAST, "--rerun", str(folder / "fit.rrd")])
+    result = CliRunner().invoke(
+        cli,
+        [
+            "fit-nerf",
+            str(images),
+            str(cameras),
+            "-o",
+            str(nerf),
+            "--steps",
+            "3",
+            *FAST,
+            "--rerun",
+            str(folder / "fit.rrd"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     return folder, images, cameras, nerf, result
 
@@ -34,9 +48,13 @@ def test_fit_writes_a_loadable_field_with_metrics_and_a_rerun_log(fitted):
 
 def test_existing_output_needs_overwrite_and_resume_continues(fitted):
     _, images, cameras, nerf, _ = fitted
-    result = CliRunner().invoke(cli, ["fit-nerf", str(images), str(cameras), "-o", str(nerf), "--steps", "5", *FAST])
+    result = CliRunner().invoke(
+        cli, ["fit-nerf", str(images), str(cameras), "-o", str(nerf), "--steps", "5", *FAST]
+    )
     assert result.exit_code == 2 and "--overwrite" in result.output
-    result = CliRunner().invoke(cli, ["fit-nerf", str(images), str(cameras), "-o", str(nerf), "--steps", "5", "--resume", *FAST])
+    result = CliRunner().invoke(
+        cli, ["fit-nerf", str(images), str(cameras), "-o", str(nerf), "--steps", "5", "--resume", *FAST]
+    )
     assert result.exit_code == 0, result.output
     assert load_nerf(nerf).metrics["steps"] == 5
 
@@ -44,10 +62,18 @@ def test_existing_output_needs_overwrite_and_resume_continues(fitted):
 def test_render_nerf_writes_colour_and_depth(fitted, tmp_path):
     _, _, cameras, nerf, _ = fitted
     out = tmp_path / "renders"
-    result = CliRunner().invoke(cli, ["render-nerf", str(nerf), str(cameras), "-o", str(out), "--views", "0,3"])
+    result = CliRunner().invoke(
+        cli, ["render-nerf", str(nerf), str(cameras), "-o", str(out), "--views", "0,3"]
+    )
     assert result.exit_code == 0, result.output
     assert sorted(p.name for p in out.iterdir()) == [
-        "view_000.png", "view_000_depth.npy", "view_000_depth.png", "view_003.png", "view_003_depth.npy", "view_003_depth.png"]
+        "view_000.png",
+        "view_000_depth.npy",
+        "view_000_depth.png",
+        "view_003.png",
+        "view_003_depth.npy",
+        "view_003_depth.png",
+    ]
     assert np.load(out / "view_000_depth.npy").shape == (24, 32)
 
 
@@ -67,14 +93,24 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
     shrunk = read_cameras(cameras)
     shrunk.width, shrunk.height = 16, 12
     write_cameras(tmp_path / "small.npz", shrunk)
-    message = _one_line_error(runner.invoke(cli, ["fit-nerf", str(images), str(tmp_path / "small.npz"), "-o", out, *FAST]))
+    message = _one_line_error(
+        runner.invoke(cli, ["fit-nerf", str(images), str(tmp_path / "small.npz"), "-o", out, *FAST])
+    )
     assert "do not match" in message
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "view_000.png").write_bytes(b"not a png")
-    message = _one_line_error(runner.invoke(cli, ["fit-nerf", str(tmp_path / "images"), str(cameras), "-o", out, *FAST]))
+    message = _one_line_error(
+        runner.invoke(cli, ["fit-nerf", str(tmp_path / "images"), str(cameras), "-o", out, *FAST])
+    )
     assert "view_00" in message
     (tmp_path / "bad.pt").write_bytes(b"garbage")
-    message = _one_line_error(runner.invoke(cli, ["render-nerf", str(tmp_path / "bad.pt"), str(cameras), "-o", str(tmp_path / "r")]))
+    message = _one_line_error(
+        runner.invoke(cli, ["render-nerf", str(tmp_path / "bad.pt"), str(cameras), "-o", str(tmp_path / "r")])
+    )
     assert "not a readable nerf.pt" in message
-    message = _one_line_error(runner.invoke(cli, ["render-nerf", str(nerf), str(cameras), "-o", str(tmp_path / "r"), "--views", "99"]))
+    message = _one_line_error(
+        runner.invoke(
+            cli, ["render-nerf", str(nerf), str(cameras), "-o", str(tmp_path / "r"), "--views", "99"]
+        )
+    )
     assert "--views" in message

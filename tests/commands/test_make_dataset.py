@@ -23,9 +23,14 @@ def stand_in_shapes(monkeypatch):
         vertices = np.asarray(mesh.vertices - mesh.center_mass, np.float32)
         return shapes.ShapeAsset(name, vertices, np.asarray(mesh.faces, np.int32), (vertices,), "test")
 
-    stand_ins = [asset("cube", trimesh.creation.box((2, 2, 2))), asset("ball", trimesh.creation.icosphere(2, 1.0))]
+    stand_ins = [
+        asset("cube", trimesh.creation.box((2, 2, 2))),
+        asset("ball", trimesh.creation.icosphere(2, 1.0)),
+    ]
     calls = []
-    monkeypatch.setattr(shapes, "load_shapes", lambda preset, split="train": calls.append((preset, split)) or stand_ins)
+    monkeypatch.setattr(
+        shapes, "load_shapes", lambda preset, split="train": calls.append((preset, split)) or stand_ins
+    )
     return calls
 
 

@@ -12,9 +12,27 @@ from tests.conftest import box_drop_file
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     folder = tmp_path_factory.mktemp("model")
-    data = write_trajectories(folder / "box.h5", box_drop_file(frames=80, height=5.0))  # stays above the floor for 50 steps
+    data = write_trajectories(
+        folder / "box.h5", box_drop_file(frames=80, height=5.0)
+    )  # stays above the floor for 50 steps
     model = folder / "model.pt"
-    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "6", "--checkpoint-every", "3", "--log-csv", str(folder / "loss.csv")])
+    result = CliRunner().invoke(
+        cli,
+        [
+            "train",
+            str(data),
+            "-o",
+            str(model),
+            "--size",
+            "tiny",
+            "--steps",
+            "6",
+            "--checkpoint-every",
+            "3",
+            "--log-csv",
+            str(folder / "loss.csv"),
+        ],
+    )
     assert result.exit_code == 0, result.output
     return folder, data, model
 
@@ -31,13 +49,29 @@ def test_train_learning_rate_option_sets_the_schedule(trained, tmp_path):
 
     _, data, model = trained
     out = tmp_path / "tuned.pt"
-    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--init-from", str(model), "--learning-rate", "2e-4", "2e-5"]
+    args = [
+        "train",
+        str(data),
+        "-o",
+        str(out),
+        "--size",
+        "tiny",
+        "--steps",
+        "2",
+        "--init-from",
+        str(model),
+        "--learning-rate",
+        "2e-4",
+        "2e-5",
+    ]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
     state = read_checkpoint_payload(out)["training_state"]
     config = json.loads(state["training_config"])
     assert (config["learning_rate_initial"], config["learning_rate_final"]) == (2e-4, 2e-5)
-    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(2e-4 * 0.1**0.5)  # the second of two steps: halfway down
+    assert state["optimizer"]["param_groups"][0]["lr"] == pytest.approx(
+        2e-4 * 0.1**0.5
+    )  # the second of two steps: halfway down
     result = CliRunner().invoke(cli, args[:-3] + ["--learning-rate", "0", "1e-4", "--overwrite"])
     assert result.exit_code == 2 and "--learning-rate" in result.output
 
@@ -46,45 +80,79 @@ def test_train_refuses_existing_output_and_resumes_on_request(trained):
     folder, data, model = trained
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])
     assert result.exit_code == 2 and "--overwrite" in result.output
-    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume", "--checkpoint-every", "3"])
+    result = CliRunner().invoke(
+        cli,
+        [
+            "train",
+            str(data),
+            "-o",
+            str(model),
+            "--size",
+            "tiny",
+            "--steps",
+            "8",
+            "--resume",
+            "--checkpoint-every",
+            "3",
+        ],
+    )
     assert result.exit_code == 0, result.output
 
 
 def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
     _, data, model = trained
     out = tmp_path / "rollout.h5"
-    result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "5", "-o", str(out)])
+    result = CliRunner().invoke(
+        cli, ["rollout", str(data), "--model", str(model), "--steps", "5", "-o", str(out)]
+    )
     assert result.exit_code == 0, result.output
     rolled = read_trajectories(out).trajectories["00000"]
     truth = read_trajectories(data).trajectories["00000"]
     assert rolled.positions.shape == (7, 2, 3)
     np.testing.assert_array_equal(rolled.positions[:2], truth.positions[:2])
-    np.testing.assert_array_equal(rolled.positions[:, 0], truth.positions[:7, 0])  # the static floor follows its frames
+    np.testing.assert_array_equal(
+        rolled.positions[:, 0], truth.positions[:7, 0]
+    )  # the static floor follows its frames
 
 
 def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     _, data, model = trained
     out = tmp_path / "metrics.json"
-    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--with-guards", "-o", str(out)])
+    result = CliRunner().invoke(
+        cli, ["evaluate", str(data), "--model", str(model), "--with-guards", "-o", str(out)]
+    )
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     metrics = report["metrics"]
     assert set(metrics) == {"model", "model_with_guards", "constant_velocity", "stand_still"}
-    assert metrics["model_with_guards"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free flight: exact while the box falls
+    assert (
+        metrics["model_with_guards"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3
+    )  # free flight: exact while the box falls
     # physical horizons at the file's 60 fps: 0.1 s = 6 steps, ..., 1 s = 60 steps; 1.67 s and 2 s are past its 80 frames
-    assert sorted(metrics["stand_still"]) == sorted(["50_steps", "0.1_seconds", "0.2_seconds", "0.33_seconds", "0.5_seconds", "1_seconds"])
+    assert sorted(metrics["stand_still"]) == sorted(
+        ["50_steps", "0.1_seconds", "0.2_seconds", "0.33_seconds", "0.5_seconds", "1_seconds"]
+    )
     half_second = metrics["stand_still"]["0.5_seconds"]["all"]
-    assert half_second["translation_rmse_m"] == pytest.approx(0.5 * 10 * ((31 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
+    assert half_second["translation_rmse_m"] == pytest.approx(
+        0.5 * 10 * ((31 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3
+    )
     assert half_second["rotation_rms_deg"] >= half_second["rotation_error_deg"] > 0
     falling = metrics["stand_still"]["50_steps"]["all"]["translation_rmse_m"]
     assert falling == pytest.approx(0.5 * 10 * ((51 / 60) ** 2 - (1 / 60) ** 2), rel=1e-3)
-    assert metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3  # free fall is ballistic
+    assert (
+        metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3
+    )  # free fall is ballistic
     assert "box" in metrics["model"]["50_steps"]["per_shape"]
     curve = report["curves"]["stand_still"]  # every step k: the box has fallen g((k+1)² − 1)dt²/2
     steps = np.array(curve["step"])
     np.testing.assert_array_equal(steps, np.arange(1, 61))  # to the longest horizon inside 80 frames: 1 s
-    np.testing.assert_allclose(curve["translation_rmse_m"], 0.5 * 10 * ((steps + 1) ** 2 - 1) / 60**2, rtol=1e-3)
-    assert report["curves"]["model"]["translation_rmse_m"][49] == metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
+    np.testing.assert_allclose(
+        curve["translation_rmse_m"], 0.5 * 10 * ((steps + 1) ** 2 - 1) / 60**2, rtol=1e-3
+    )
+    assert (
+        report["curves"]["model"]["translation_rmse_m"][49]
+        == metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
+    )
     versus_stand_still = report["comparison"]["stand_still"]["50_steps"]
     model_error = metrics["model"]["50_steps"]["all"]["translation_rmse_m"]
     assert versus_stand_still["translation_rmse_ratio"] == pytest.approx(model_error / falling)
@@ -94,7 +162,9 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
 def test_evaluate_ceilings_need_a_make_dataset_file(trained, tmp_path):
     _, data, model = trained  # written by the tests, not by make-dataset: no generator config
     out = tmp_path / "metrics.json"
-    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--ceilings", "-o", str(out)])
+    result = CliRunner().invoke(
+        cli, ["evaluate", str(data), "--model", str(model), "--ceilings", "-o", str(out)]
+    )
     assert result.exit_code != 0 and not out.exists()
     assert "not made by `fignetctl make-dataset`" in result.output and "Traceback" not in result.output
 
@@ -105,12 +175,18 @@ def test_free_flight_makes_a_falling_box_exact_in_rollout_and_evaluate(trained, 
     errors = {}
     for flag in ("--free-flight", "--no-free-flight"):
         out = tmp_path / f"{flag}.h5"
-        result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "20", flag, "-o", str(out)])
+        result = CliRunner().invoke(
+            cli, ["rollout", str(data), "--model", str(model), "--steps", "20", flag, "-o", str(out)]
+        )
         assert result.exit_code == 0, result.output
-        errors[flag] = np.abs(read_trajectories(out).trajectories["00000"].positions[:, 1] - truth[:22, 1]).max()
+        errors[flag] = np.abs(
+            read_trajectories(out).trajectories["00000"].positions[:, 1] - truth[:22, 1]
+        ).max()
     assert errors["--free-flight"] < 1e-4 < errors["--no-free-flight"]  # a 6-step model does not fall at g
     out = tmp_path / "metrics.json"
-    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--free-flight", "-o", str(out)])
+    result = CliRunner().invoke(
+        cli, ["evaluate", str(data), "--model", str(model), "--free-flight", "-o", str(out)]
+    )
     assert result.exit_code == 0, result.output
     report = json.loads(out.read_text())
     assert report["free_flight"] is True
@@ -126,15 +202,34 @@ def test_keep_out_stops_a_falling_box_at_the_floor(trained, tmp_path):
     lowest = {}
     for flag in ("--keep-out", "--no-keep-out"):
         out = tmp_path / f"{flag}.h5"
-        result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "--steps", "75", "--no-sleep", flag, "-o", str(out)])
+        result = CliRunner().invoke(
+            cli,
+            [
+                "rollout",
+                str(data),
+                "--model",
+                str(model),
+                "--steps",
+                "75",
+                "--no-sleep",
+                flag,
+                "-o",
+                str(out),
+            ],
+        )
         assert result.exit_code == 0, result.output
         frames = read_trajectories(out).trajectories["00000"]
         corners = trimesh.creation.box().vertices
-        lowest[flag] = min(transform_points(corners, 1.0, p, q)[:, 2].min() for p, q in zip(frames.positions[:, 1], frames.quaternions[:, 1]))
+        lowest[flag] = min(
+            transform_points(corners, 1.0, p, q)[:, 2].min()
+            for p, q in zip(frames.positions[:, 1], frames.quaternions[:, 1])
+        )
     assert lowest["--keep-out"] >= -1e-3  # float32 poses in the file; the guard's tolerance is 1 mm
     assert lowest["--no-keep-out"] < -0.05  # a 6-step model does not stop at the floor by itself
     out = tmp_path / "metrics.json"
-    result = CliRunner().invoke(cli, ["evaluate", str(data), "--model", str(model), "--keep-out", "-o", str(out)])
+    result = CliRunner().invoke(
+        cli, ["evaluate", str(data), "--model", str(model), "--keep-out", "-o", str(out)]
+    )
     assert result.exit_code == 0, result.output
     assert json.loads(out.read_text())["keep_out"] is True
 
@@ -145,7 +240,9 @@ def test_bad_model_file_is_one_line_error(trained, tmp_path, bad):
     model = tmp_path / "model.pt"
     if bad == "garbage":
         model.write_bytes(b"PK\x03\x04 not really" * 50)
-    result = CliRunner().invoke(cli, ["rollout", str(data), "--model", str(model), "-o", str(tmp_path / "r.h5")])
+    result = CliRunner().invoke(
+        cli, ["rollout", str(data), "--model", str(model), "-o", str(tmp_path / "r.h5")]
+    )
     assert result.exit_code == 1
     assert "Traceback" not in result.output and result.output.startswith("Error: ")
     assert not (tmp_path / "r.h5").exists()
@@ -154,19 +251,37 @@ def test_bad_model_file_is_one_line_error(trained, tmp_path, bad):
 def test_rollout_refuses_scene_with_one_frame(trained, tmp_path):
     _, _, model = trained
     scene = write_trajectories(tmp_path / "one.h5", box_drop_file(frames=1))
-    result = CliRunner().invoke(cli, ["rollout", str(scene), "--model", str(model), "-o", str(tmp_path / "r.h5")])
+    result = CliRunner().invoke(
+        cli, ["rollout", str(scene), "--model", str(model), "-o", str(tmp_path / "r.h5")]
+    )
     assert result.exit_code == 1 and "needs 2" in result.output
 
 
 def test_train_logs_loss_to_rerun(trained, tmp_path):
     _, data, _ = trained
     rrd = tmp_path / "loss.rrd"
-    result = CliRunner().invoke(cli, ["train", str(data), "-o", str(tmp_path / "m.pt"), "--size", "tiny", "--steps", "2", "--rerun", str(rrd)])
+    result = CliRunner().invoke(
+        cli,
+        [
+            "train",
+            str(data),
+            "-o",
+            str(tmp_path / "m.pt"),
+            "--size",
+            "tiny",
+            "--steps",
+            "2",
+            "--rerun",
+            str(rrd),
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert rrd.stat().st_size > 100
 
 
-def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside_them(trained, tmp_path, caplog):
+def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside_them(
+    trained, tmp_path, caplog
+):
     import dataclasses
 
     from fignetctl.core.model.checkpoint import export_checkpoint
@@ -177,23 +292,37 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
     truth = read_trajectories(data).trajectories["00000"]
     ranges = load_model(str(model)).trained_properties
     assert ranges["dynamic"]["friction"] == pytest.approx([truth.friction[1]] * 2)
-    assert ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2) and "mass" not in ranges["static"]
+    assert (
+        ranges["static"]["restitution"] == pytest.approx([truth.restitution[0]] * 2)
+        and "mass" not in ranges["static"]
+    )
     assert ranges["dynamic"]["materials"] == [pytest.approx([truth.friction[1], truth.restitution[1]])]
     assert ranges["dynamic"]["largest_side"] == pytest.approx([truth.scales[1]] * 3)  # a unit box, scaled
     scene = box_drop_file(frames=80, height=5.0)
-    slippery = dataclasses.replace(scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32))
+    slippery = dataclasses.replace(
+        scene.trajectories["00000"], friction=np.array([truth.friction[0], 5.0], np.float32)
+    )
     write_trajectories(tmp_path / "slippery.h5", dataclasses.replace(scene, trajectories={"00000": slippery}))
     for path, warned in ((data, False), (tmp_path / "slippery.h5", True)):
-        for command in (["rollout", "--steps", "2", "-o", tmp_path / "r.h5"], ["evaluate", "-o", tmp_path / "m.json"]):
+        for command in (
+            ["rollout", "--steps", "2", "-o", tmp_path / "r.h5"],
+            ["evaluate", "-o", tmp_path / "m.json"],
+        ):
             caplog.clear()
-            result = CliRunner().invoke(cli, [command[0], str(path), "--model", str(model), *map(str, command[1:]), "--overwrite"])
+            result = CliRunner().invoke(
+                cli, [command[0], str(path), "--model", str(model), *map(str, command[1:]), "--overwrite"]
+            )
             assert result.exit_code == 0, result.output
             messages = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
             assert len(messages) == warned, messages
-    assert "dynamic object 'box' has friction 5 and restitution" in messages[0] and "extrapolates" in messages[0]
+    assert (
+        "dynamic object 'box' has friction 5 and restitution" in messages[0] and "extrapolates" in messages[0]
+    )
     # export keeps the ranges; a run saved before them gets them from its own training file only
     assert load_model(str(export_checkpoint(model, tmp_path / "shipped.pt"))).trained_properties == ranges
-    again = export_checkpoint(tmp_path / "shipped.pt", tmp_path / "again.pt", trained_on=data)  # an exported file keeps its provenance
+    again = export_checkpoint(
+        tmp_path / "shipped.pt", tmp_path / "again.pt", trained_on=data
+    )  # an exported file keeps its provenance
     assert load_model(str(again)).trained_properties == ranges
     with pytest.raises(FormatError, match="is not the file"):
         export_checkpoint(model, tmp_path / "other.pt", trained_on=tmp_path / "slippery.h5")

@@ -25,8 +25,15 @@ def test_writes_a_capture_and_prints_its_folder(tmp_path):
     cameras = read_cameras(out / "ground_truth" / "cameras.npz")
     assert len(cameras) == 4 and (cameras.width, cameras.height) == (32, 24)
     assert all((out / "images" / name).is_file() for name in cameras.image_names)
-    for name in ("video.mp4", "prompts.json", "ground_truth/depth.npz", "ground_truth/masks.npz",
-                 "ground_truth/scene.json", "ground_truth/objects/table.obj", "ground_truth/objects/tray.obj"):
+    for name in (
+        "video.mp4",
+        "prompts.json",
+        "ground_truth/depth.npz",
+        "ground_truth/masks.npz",
+        "ground_truth/scene.json",
+        "ground_truth/objects/table.obj",
+        "ground_truth/objects/tray.obj",
+    ):
         assert (out / name).is_file(), name
 
 
@@ -50,7 +57,11 @@ def test_no_video_and_overwrite(tmp_path):
 
 
 def test_bad_options_are_one_line_errors_without_traceback(tmp_path):
-    for args, hint in ((["--views", "0"], "--views"), (["--width", "2"], "--width"), (["--objects", "7"], "--objects")):
+    for args, hint in (
+        (["--views", "0"], "--views"),
+        (["--width", "2"], "--width"),
+        (["--objects", "7"], "--objects"),
+    ):
         result = run(*args, "-o", str(tmp_path / "x"))
         assert result.exit_code == 2 and hint in result.stderr, result.stderr
         assert "Traceback" not in result.stderr + result.stdout
@@ -59,4 +70,6 @@ def test_bad_options_are_one_line_errors_without_traceback(tmp_path):
 
 def test_help_has_an_example():
     result = run("--help")
-    assert result.exit_code == 0 and "Example:" in result.stdout and "fignetctl render-views -o" in result.stdout
+    assert (
+        result.exit_code == 0 and "Example:" in result.stdout and "fignetctl render-views -o" in result.stdout
+    )

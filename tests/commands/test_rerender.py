@@ -24,12 +24,22 @@ def box_rollout(half=0.5 * (BOX_UPPER - BOX_LOWER), shift=(0.15, 0.1, 0.05)):
     quaternions = np.zeros((FRAMES, 2, 4), np.float32)
     quaternions[..., 0] = 1.0
     trajectory = Trajectory(
-        mesh_names=np.array(["floor", "box"], dtype=object), scales=np.ones(2, np.float32), positions=positions,
-        quaternions=quaternions, static=np.array([True, False]), mass=np.array([0.0, 1.0], np.float32),
-        friction=np.full(2, 0.5, np.float32), restitution=np.full(2, 0.5, np.float32),
+        mesh_names=np.array(["floor", "box"], dtype=object),
+        scales=np.ones(2, np.float32),
+        positions=positions,
+        quaternions=quaternions,
+        static=np.array([True, False]),
+        mass=np.array([0.0, 1.0], np.float32),
+        friction=np.full(2, 0.5, np.float32),
+        restitution=np.full(2, 0.5, np.float32),
     )
     floor = Mesh(np.array([[-1, -1, -0.8], [1, -1, -0.8], [-1, 1, -0.8], [1, 1, -0.8]], np.float32), faces)
-    return TrajectoryFile(dt=0.1, gravity=np.array([0, 0, -10.0]), meshes={"floor": floor, "box": Mesh(corners, faces)}, trajectories={"00000": trajectory})
+    return TrajectoryFile(
+        dt=0.1,
+        gravity=np.array([0, 0, -10.0]),
+        meshes={"floor": floor, "box": Mesh(corners, faces)},
+        trajectories={"00000": trajectory},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -40,12 +50,20 @@ def inputs(tmp_path_factory):
     write_trajectories(folder / "rollout.h5", box_rollout())
     K, c2w, width, height = top_camera(size=32, focal=40.0)
     side = look_at_c2w([2.5, 0.5, 1.5], [0, 0, -0.4])
-    write_cameras(folder / "cameras.npz", Cameras(np.array(["top.png", "side.png"]), np.stack([K, K]), np.stack([c2w, side]), width, height))
-    return {name: str(folder / f"{name}.{ext}") for name, ext in (("nerf", "pt"), ("volume", "npz"), ("rollout", "h5"), ("cameras", "npz"))}
+    write_cameras(
+        folder / "cameras.npz",
+        Cameras(np.array(["top.png", "side.png"]), np.stack([K, K]), np.stack([c2w, side]), width, height),
+    )
+    return {
+        name: str(folder / f"{name}.{ext}")
+        for name, ext in (("nerf", "pt"), ("volume", "npz"), ("rollout", "h5"), ("cameras", "npz"))
+    }
 
 
 def run(inputs, *extra):
-    return CliRunner().invoke(cli, ["rerender", inputs["nerf"], inputs["volume"], inputs["rollout"], *map(str, extra)])
+    return CliRunner().invoke(
+        cli, ["rerender", inputs["nerf"], inputs["volume"], inputs["rollout"], *map(str, extra)]
+    )
 
 
 def read_video(path):
@@ -63,7 +81,9 @@ def test_fixed_camera_writes_frames_and_video(inputs, tmp_path):
     assert result.exit_code == 0, result.output
     assert result.stdout.strip().splitlines()[-1] == str(video)
     pngs = sorted((tmp_path / "out_frames").glob("frame_*.png"))
-    assert len(pngs) == FRAMES and len(read_video(video)) == FRAMES and read_video_info(video)["codec"] == "h264"
+    assert (
+        len(pngs) == FRAMES and len(read_video(video)) == FRAMES and read_video_info(video)["codec"] == "h264"
+    )
     first, last = (cv2.imread(str(p))[..., ::-1] for p in (pngs[0], pngs[-1]))
     assert first.shape == (32, 32, 3)
     camera = top_camera(size=32, focal=40.0)
@@ -76,8 +96,27 @@ def test_fixed_camera_writes_frames_and_video(inputs, tmp_path):
 
 def test_orbit_every_trace_rerun_and_scaled_size(inputs, tmp_path):
     video, frames, rrd = tmp_path / "o.mp4", tmp_path / "pngs", tmp_path / "o.rrd"
-    result = run(inputs, "--orbit", "--radius", 3, "--elevation", 40, "--every", 2, "--width", 24, "--trace",
-                 "--mode", "duplicate", "--frames", frames, "--rerun", rrd, "-o", video)
+    result = run(
+        inputs,
+        "--orbit",
+        "--radius",
+        3,
+        "--elevation",
+        40,
+        "--every",
+        2,
+        "--width",
+        24,
+        "--trace",
+        "--mode",
+        "duplicate",
+        "--frames",
+        frames,
+        "--rerun",
+        rrd,
+        "-o",
+        video,
+    )
     assert result.exit_code == 0, result.output
     images = [cv2.imread(str(p)) for p in sorted(frames.glob("*.png"))]
     assert len(images) == 2 and images[0].shape == (18, 24, 3)

@@ -74,7 +74,9 @@ def test_unknown_trajectory_is_named(box_file):
 
 @pytest.mark.skipif(not INDEPENDENT_FIXTURE.exists(), reason="../shared is not beside the checkout")
 def test_shows_the_independent_fixture(tmp_path):
-    result = CliRunner().invoke(cli, ["show", str(INDEPENDENT_FIXTURE), "--png", str(tmp_path / "f.png"), "--frame", "30"])
+    result = CliRunner().invoke(
+        cli, ["show", str(INDEPENDENT_FIXTURE), "--png", str(tmp_path / "f.png"), "--frame", "30"]
+    )
     assert result.exit_code == 0, result.output
     image = cv2.imread(str(tmp_path / "f.png"))
     assert image.shape == (360, 480, 3) and image.std() > 10
@@ -95,7 +97,10 @@ def test_video_container_reports_frame_count_and_size(box_file, tmp_path):
     capture = cv2.VideoCapture(str(video))
     assert capture.isOpened()
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 10
-    assert (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))) == (480, 360)
+    assert (int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))) == (
+        480,
+        360,
+    )
     assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(60.0, rel=1e-3)
     assert not list(tmp_path.glob(".b.*"))  # no temporary file left beside it
 
@@ -106,7 +111,9 @@ def test_rerun_recording_passes_rrd_verify(box_file, tmp_path):
 
     rrd = tmp_path / "b.rrd"
     assert CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(rrd)]).exit_code == 0
-    check = subprocess.run([_rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
+    check = subprocess.run(
+        [_rerun_executable(), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60
+    )
     assert check.returncode == 0, check.stdout + check.stderr
 
 
@@ -115,7 +122,9 @@ def test_recordings_in_one_folder_share_one_recording_id(box_file, tmp_path, mon
     import subprocess
 
     def recording_id(path):
-        printed = subprocess.run([_rerun_executable(), "rrd", "print", str(path)], capture_output=True, text=True, timeout=60)
+        printed = subprocess.run(
+            [_rerun_executable(), "rrd", "print", str(path)], capture_output=True, text=True, timeout=60
+        )
         assert printed.returncode == 0, printed.stderr
         return printed.stdout.split("Recording,", 1)[1].split(")", 1)[0].split(",")[1].strip().strip('"')
 
@@ -127,7 +136,10 @@ def test_recordings_in_one_folder_share_one_recording_id(box_file, tmp_path, mon
     ids = [recording_id(p) for p in paths]
     assert ids[0] == ids[1] == str((tmp_path / "a").resolve()) != ids[2]
     monkeypatch.setenv("FIGNETCTL_RECORDING_ID", "batch-7")
-    assert CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(paths[2]), "--overwrite"]).exit_code == 0
+    assert (
+        CliRunner().invoke(cli, ["show", str(box_file), "--rerun", str(paths[2]), "--overwrite"]).exit_code
+        == 0
+    )
     assert recording_id(paths[2]) == "batch-7"
 
 
@@ -150,7 +162,10 @@ def test_random_bytes_are_one_line_error(tmp_path):
 
 
 def test_overwrite_replaces_every_existing_output(box_file, tmp_path):
-    paths = {flag: tmp_path / name for flag, name in (("--json", "s.json"), ("--png", "f.png"), ("--rerun", "r.rrd"))}
+    paths = {
+        flag: tmp_path / name
+        for flag, name in (("--json", "s.json"), ("--png", "f.png"), ("--rerun", "r.rrd"))
+    }
     for path in paths.values():
         path.write_bytes(b"old")
     arguments = [item for flag, path in paths.items() for item in (flag, str(path))]
@@ -164,7 +179,9 @@ def test_overwrite_replaces_every_existing_output(box_file, tmp_path):
 
 
 def test_trajectory_by_number_and_frame_out_of_range(box_file, tmp_path):
-    ok = CliRunner().invoke(cli, ["show", str(box_file), "--trajectory", "0", "--png", str(tmp_path / "a.png")])
+    ok = CliRunner().invoke(
+        cli, ["show", str(box_file), "--trajectory", "0", "--png", str(tmp_path / "a.png")]
+    )
     assert ok.exit_code == 0, ok.output
     bad = CliRunner().invoke(cli, ["show", str(box_file), "--png", str(tmp_path / "b.png"), "--frame", "10"])
     assert bad.exit_code == 1 and "frame 10" in bad.output and "Traceback" not in bad.output

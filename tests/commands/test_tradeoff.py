@@ -33,7 +33,9 @@ def test_quick_decimation_and_device(tmp_path):
 
 def test_quick_message_passing_trains_two_sizes(tmp_path):
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=8, height=0.6))
-    result = run(["message-passing", "--quick", "--data", str(data), "--train-data", str(data), "-o", str(tmp_path)])
+    result = run(
+        ["message-passing", "--quick", "--data", str(data), "--train-data", str(data), "-o", str(tmp_path)]
+    )
     assert result.exit_code == 0, result.output
     points = json.loads((tmp_path / "tradeoff-message-passing.json").read_text())["points"]
     assert [(p["latent_size"], p["message_passing_steps"]) for p in points] == [(32, 1), (32, 2)]

@@ -18,18 +18,42 @@ FIGNETCTL = Path(sys.executable).with_name("fignetctl")
 
 
 def _torchrun_train(data, model, steps, *extra):
-    command = [str(TORCHRUN), "--standalone", "--nproc_per_node", "2", str(FIGNETCTL), "train", str(data), "-o", str(model), "--size", "tiny", "--steps", str(steps), "--checkpoint-every", "2", *extra]
+    command = [
+        str(TORCHRUN),
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        str(FIGNETCTL),
+        "train",
+        str(data),
+        "-o",
+        str(model),
+        "--size",
+        "tiny",
+        "--steps",
+        str(steps),
+        "--checkpoint-every",
+        "2",
+        *extra,
+    ]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.run(command, capture_output=True, text=True, env=env, timeout=300)
 
 
 def _why(result) -> str:
     """What the ranks said before one died (torchrun's own report is only the tail)."""
-    said = [line for line in result.stderr.splitlines() if any(w in line for w in ("rror", "abort", "what()", "terminate"))]
+    said = [
+        line
+        for line in result.stderr.splitlines()
+        if any(w in line for w in ("rror", "abort", "what()", "terminate"))
+    ]
     return "\n".join(said)[-3000:] + "\n...\n" + result.stderr[-1000:]
 
 
-@pytest.mark.skipif(not (TORCHRUN.exists() and FIGNETCTL.exists()), reason="torchrun or the fignetctl script is not installed beside this python")
+@pytest.mark.skipif(
+    not (TORCHRUN.exists() and FIGNETCTL.exists()),
+    reason="torchrun or the fignetctl script is not installed beside this python",
+)
 def test_two_processes_train_and_resume_together(tmp_path):
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
     model = tmp_path / "model.pt"
@@ -40,5 +64,7 @@ def test_two_processes_train_and_resume_together(tmp_path):
     resumed = _torchrun_train(data, model, 6, "--resume")
     assert resumed.returncode == 0, _why(resumed)
     assert torch.load(model, weights_only=True)["training_state"]["step"] == 6
-    single = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume"])
+    single = CliRunner().invoke(
+        cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume"]
+    )
     assert single.exit_code == 1 and "resume it with as many" in single.output

@@ -55,7 +55,11 @@ def scene_rectangles(table_size=1.0):
     """The table top and two boxes as rectangles (origin, u edge, v edge)."""
     half = table_size / 2
     table = (np.array([-half, -half, 0.0]), np.array([table_size, 0, 0]), np.array([0, table_size, 0]))
-    return [table, *_box_faces((0.1, 0.05, 0.0), (0.2, 0.15, 0.12)), *_box_faces((-0.2, -0.15, 0.0), (0.12, 0.12, 0.2))]
+    return [
+        table,
+        *_box_faces((0.1, 0.05, 0.0), (0.2, 0.15, 0.12)),
+        *_box_faces((-0.2, -0.15, 0.0), (0.12, 0.12, 0.2)),
+    ]
 
 
 def render(c2w, K, width, height, rectangles, textures, background=0.3) -> np.ndarray:

@@ -74,7 +74,10 @@ def test_matches_brute_force_on_random_scenes(seed, radius):
 def test_per_object_margins_match_brute_force(seed):
     triangles, face_object, object_static = random_scene(seed)
     margins = np.random.default_rng(seed).uniform(0.0, 0.3, object_static.shape[0]) * ~object_static
-    groups = [FaceGroup.from_triangles(np.flatnonzero(face_object == o), triangles[face_object == o]) for o in range(len(object_static))]
+    groups = [
+        FaceGroup.from_triangles(np.flatnonzero(face_object == o), triangles[face_object == o])
+        for o in range(len(object_static))
+    ]
     found = face_pairs_between_groups(groups, object_static, 0.03, len(triangles), margins)
     expected = brute_force_face_pairs(triangles, face_object, 0.03, object_static, margins)
     plain = brute_force_face_pairs(triangles, face_object, 0.03, object_static)

@@ -63,7 +63,9 @@ def test_depth_is_the_distance_along_the_axis_to_the_table_plane(tiny_capture):
     for view in range(len(cameras)):
         rows, columns = np.nonzero(masks[view] == table)
         K, c2w = cameras.K[view], cameras.c2w[view]
-        rays = np.stack([(columns + 0.5 - K[0, 2]) / K[0, 0], (rows + 0.5 - K[1, 2]) / K[1, 1], np.ones(len(rows))], 1)
+        rays = np.stack(
+            [(columns + 0.5 - K[0, 2]) / K[0, 0], (rows + 0.5 - K[1, 2]) / K[1, 1], np.ones(len(rows))], 1
+        )
         world_rays = rays @ c2w[:3, :3].T
         expected = -c2w[2, 3] / world_rays[:, 2]  # z = 0 is the table top; rays have unit camera z
         assert len(rows) > 100
@@ -88,7 +90,9 @@ def test_object_meshes_project_onto_their_masks(tiny_capture):
             assert (z > 0).all()
             assert low[0] - 1 <= columns.min() and columns.max() <= high[0] + 1
             assert low[1] - 1 <= rows.min() and rows.max() <= high[1] + 1
-            points = capture.unproject(depth[view], cameras.K[view], cameras.c2w[view], np.stack([columns, rows], 1))
+            points = capture.unproject(
+                depth[view], cameras.K[view], cameras.c2w[view], np.stack([columns, rows], 1)
+            )
             assert np.all((points >= np.min(vertices, 0) - 0.01) & (points <= np.max(vertices, 0) + 0.01))
         assert seen >= 2, item["name"]
 
@@ -111,7 +115,9 @@ def test_prompts_lie_inside_their_objects_masks(tiny_capture):
     movable = {o["name"] for o in scene["objects"] if o["movable"]}
     assert {entry["name"] for entry in prompts["objects"]} == movable
     for entry in prompts["objects"]:
-        assert len(entry["points"]) >= 2 and len({p["image"] for p in entry["points"]}) == len(entry["points"])
+        assert len(entry["points"]) >= 2 and len({p["image"] for p in entry["points"]}) == len(
+            entry["points"]
+        )
         for point in entry["points"]:
             view = cameras.index_of(point["image"])
             assert masks[view, point["v"], point["u"]] == entry["id"]
@@ -126,7 +132,9 @@ def test_the_same_seed_gives_the_same_capture_and_another_seed_another(tmp_path)
     for name in ("images/view_002.png", "prompts.json"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert not (tmp_path / "a" / "video.mp4").exists()
-    assert (tmp_path / "a" / "images/view_000.png").read_bytes() != (tmp_path / "c" / "images/view_000.png").read_bytes()
+    assert (tmp_path / "a" / "images/view_000.png").read_bytes() != (
+        tmp_path / "c" / "images/view_000.png"
+    ).read_bytes()
     assert len(c["objects"]) == 4 and a["views"] == 4
 
 
@@ -177,7 +185,9 @@ def test_linearize_depth_inverts_the_perspective_depth_buffer():
 def test_the_tray_rests_on_the_table_and_the_objects_in_the_tray(tiny_capture):
     scene = json.loads((tiny_capture[0] / "ground_truth" / "scene.json").read_text())
     bounds = {o["name"]: np.array(o["bounds"]) for o in scene["objects"]}
-    assert bounds["table"][1, 2] == pytest.approx(0.0) and bounds["tray"][0, 2] == pytest.approx(0.0, abs=1e-6)
+    assert bounds["table"][1, 2] == pytest.approx(0.0) and bounds["tray"][0, 2] == pytest.approx(
+        0.0, abs=1e-6
+    )
     floor = capture.TRAY_FLOOR_TOP * capture.TRAY.scale + capture.tray_lift()
     half = capture.TRAY_FLOOR_HALF * capture.TRAY.scale
     for item in (o for o in scene["objects"] if o["movable"]):

@@ -13,7 +13,12 @@ import pytest
 from fignetctl.core import ceilings, movi
 from fignetctl.core.shapes import ShapeAsset
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
-from fignetctl.core.transforms import quat_angle_deg, quat_from_rotation_vector, quat_multiply, random_quaternions
+from fignetctl.core.transforms import (
+    quat_angle_deg,
+    quat_from_rotation_vector,
+    quat_multiply,
+    random_quaternions,
+)
 from fignetctl.errors import FignetError
 
 GRAVITY = 10.0
@@ -78,9 +83,15 @@ def spinning_fall(tmp_path_factory, shapes):
     omega = np.array([1.0, -2.0, 3.0])
     q0 = random_quaternions(np.random.default_rng(0), 1)[0]
     q1 = quat_multiply(quat_from_rotation_vector(omega * data.dt), q0)
-    trajectory.quaternions[0, 1], trajectory.quaternions[1, 1], trajectory.angular_velocities[1, 1] = q0, q1, omega
+    trajectory.quaternions[0, 1], trajectory.quaternions[1, 1], trajectory.angular_velocities[1, 1] = (
+        q0,
+        q1,
+        omega,
+    )
     steps = np.arange(trajectory.num_frames - 1)[:, None]
-    return data, quat_multiply(quat_from_rotation_vector(omega * data.dt * steps), trajectory.quaternions[1, 1])
+    return data, quat_multiply(
+        quat_from_rotation_vector(omega * data.dt * steps), trajectory.quaternions[1, 1]
+    )
 
 
 # ----------------------------------------------------------------------------- the restarts
@@ -104,8 +115,12 @@ def test_restarts_keep_the_floor_where_it_is(tosses, shapes):
     for state in ceilings.STATES:
         positions, quaternions = ceilings.ceiling_rollout(tosses, key, state, 5, assets=shapes)
         assert positions.shape[0] == 7
-        np.testing.assert_array_equal(positions[:, 0], np.repeat(tosses.trajectories[key].positions[1:2, 0], 7, 0))
-        np.testing.assert_array_equal(quaternions[:, 0], np.repeat(tosses.trajectories[key].quaternions[1:2, 0], 7, 0))
+        np.testing.assert_array_equal(
+            positions[:, 0], np.repeat(tosses.trajectories[key].positions[1:2, 0], 7, 0)
+        )
+        np.testing.assert_array_equal(
+            quaternions[:, 0], np.repeat(tosses.trajectories[key].quaternions[1:2, 0], 7, 0)
+        )
 
 
 def test_in_free_fall_the_velocity_state_is_exact_and_finite_differences_lag_behind(spinning_fall, shapes):
@@ -196,23 +211,44 @@ def test_evaluate_measures_the_ceilings_beside_the_model(tosses, shapes):
 
     torch.manual_seed(0)
     config = simulator_config_for("fignet-star", "tiny", 0.5, state="velocities")
-    simulator = LearnedSimulator(dataclasses.replace(config, dt=tosses.dt, gravity=tuple(tosses.gravity))).eval()
+    simulator = LearnedSimulator(
+        dataclasses.replace(config, dt=tosses.dt, gravity=tuple(tosses.gravity))
+    ).eval()
     scenes = [scene_from_trajectory(tosses, key, SimulatorConfig()) for key in tosses.trajectories]
     scene = scenes[0]  # normalisers from one frame; the weights stay random
     velocities = (scene.velocities[1] * scene.dt, scene.angular_velocities[1] * scene.dt)
-    simulator(build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph,
-                                velocities).graph, accumulate=True)
-    simulator.inverse_postprocess(np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True)
+    simulator(
+        build_scene_graph(
+            scene.geometry, scene.positions, scene.quaternions, simulator.config.graph, velocities
+        ).graph,
+        accumulate=True,
+    )
+    simulator.inverse_postprocess(
+        np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True
+    )
     with ceilings.RestartedPyBullet(tosses, shapes) as physics:
-        references = {f"ceiling_{state}": (lambda scene, k, state=state: physics.rollout(scene.name, state, k))
-                      for state in ("velocity", "finite-difference")}
+        references = {
+            f"ceiling_{state}": (lambda scene, k, state=state: physics.rollout(scene.name, state, k))
+            for state in ("velocity", "finite-difference")
+        }
         report = evaluate_scenes(simulator, tosses, scenes, references=references)
     metrics = report["metrics"]
-    assert set(metrics) == {"model", "constant_velocity", "stand_still", "ceiling_velocity", "ceiling_finite-difference"}
+    assert set(metrics) == {
+        "model",
+        "constant_velocity",
+        "stand_still",
+        "ceiling_velocity",
+        "ceiling_finite-difference",
+    }
     first = metrics["ceiling_velocity"]["0.1_seconds"]["all"]
-    assert first["translation_rmse_m"] < 1e-3 and first["objects"] == sum((~t.static).sum() for t in tosses.trajectories.values())
+    assert first["translation_rmse_m"] < 1e-3 and first["objects"] == sum(
+        (~t.static).sum() for t in tosses.trajectories.values()
+    )
     for horizon in metrics["model"]:
-        velocity, finite = (metrics[f"ceiling_{s}"][horizon]["all"]["translation_rmse_m"] for s in ("velocity", "finite-difference"))
+        velocity, finite = (
+            metrics[f"ceiling_{s}"][horizon]["all"]["translation_rmse_m"]
+            for s in ("velocity", "finite-difference")
+        )
         assert velocity < finite
     assert set(report["comparison"]) == set(metrics) - {"model"}
     assert len(report["curves"]["ceiling_velocity"]["step"]) == len(report["curves"]["model"]["step"])

@@ -72,7 +72,9 @@ def test_mesh_inertia_matches_trimesh_with_the_same_mass():
     scaled.apply_scale(2.0)
     scaled.density = 5.0 / scaled.volume
     expected = scaled.moment_inertia
-    np.testing.assert_allclose(mesh_inertia(mesh.vertices, mesh.faces, 2.0, 5.0), expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(
+        mesh_inertia(mesh.vertices, mesh.faces, 2.0, 5.0), expected, rtol=1e-9, atol=1e-12
+    )
     inside_out = mesh_inertia(mesh.vertices, mesh.faces[:, ::-1], 2.0, 5.0)
     np.testing.assert_allclose(inside_out, expected, rtol=1e-9, atol=1e-12)
 
@@ -82,7 +84,9 @@ def test_flat_mesh_inertia_is_finite():
 
     square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     inertia = mesh_inertia(square, np.array([[0, 1, 2], [0, 2, 3]]), 1.0, 2.0)
-    assert np.all(np.isfinite(inertia)) and inertia[2, 2] == pytest.approx(4.0)  # 4 point masses of ½ kg at √2 m
+    assert np.all(np.isfinite(inertia)) and inertia[2, 2] == pytest.approx(
+        4.0
+    )  # 4 point masses of ½ kg at √2 m
 
 
 def test_world_vertices_follow_the_pose_and_give_the_lowest_height():

@@ -9,8 +9,17 @@ from fignetctl.core.media import Mp4Writer, read_video_info
 def gradient_frames(count, width, height):
     """Smooth frames that change over time (H.264 keeps them within a few levels)."""
     y, x = np.mgrid[0:height, 0:width]
-    return [np.stack([(x * 255 // max(width - 1, 1) + 7 * k) % 256, y * 255 // max(height - 1, 1),
-                      np.full_like(x, 40 * k % 256)], axis=-1).astype(np.uint8) for k in range(count)]
+    return [
+        np.stack(
+            [
+                (x * 255 // max(width - 1, 1) + 7 * k) % 256,
+                y * 255 // max(height - 1, 1),
+                np.full_like(x, 40 * k % 256),
+            ],
+            axis=-1,
+        ).astype(np.uint8)
+        for k in range(count)
+    ]
 
 
 @pytest.mark.parametrize("width, height", [(64, 48), (65, 47)])
@@ -23,7 +32,10 @@ def test_frames_come_back_as_h264_of_the_same_size_count_and_colours(tmp_path, w
             writer.write(frame)
     info = read_video_info(tmp_path / "v.mp4")
     assert info["codec"] == "h264" and info["frames"] == 12 and info["fps"] == pytest.approx(15.0)
-    assert (info["width"], info["height"]) == (width + width % 2, height + height % 2)  # odd sizes padded by one
+    assert (info["width"], info["height"]) == (
+        width + width % 2,
+        height + height % 2,
+    )  # odd sizes padded by one
     with av.open(str(tmp_path / "v.mp4")) as container:
         decoded = [f.to_ndarray(format="rgb24")[:height, :width] for f in container.decode(video=0)]
     errors = [np.abs(a.astype(int) - b.astype(int)).mean() for a, b in zip(decoded, frames)]

@@ -92,10 +92,14 @@ def test_views_that_do_not_overlap_fail():
 
 
 def test_volume_round_trip_and_damage(tmp_path):
-    volume = Volume(np.zeros(3), np.ones(3), np.full(3, 0.5), -np.ones(3), np.full(3, 2.0), settings={"faces": 10})
+    volume = Volume(
+        np.zeros(3), np.ones(3), np.full(3, 0.5), -np.ones(3), np.full(3, 2.0), settings={"faces": 10}
+    )
     write_volume(tmp_path / "volume.npz", volume)
     back = read_volume(tmp_path / "volume.npz")
-    assert np.allclose(back.origin, 0.5) and back.object_mesh == "object.obj" and back.settings == {"faces": 10}
+    assert (
+        np.allclose(back.origin, 0.5) and back.object_mesh == "object.obj" and back.settings == {"faces": 10}
+    )
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(FormatError, match="not a readable"):
         read_volume(tmp_path / "bad.npz")
@@ -106,7 +110,9 @@ def test_volume_round_trip_and_damage(tmp_path):
     with pytest.raises(FormatError, match="missing field 'upper'"):
         read_volume(tmp_path / "part.npz")
     with pytest.raises(FormatError, match="greater"):
-        write_volume(tmp_path / "v.npz", Volume(np.ones(3), np.zeros(3), np.zeros(3), -np.ones(3), np.ones(3)))
+        write_volume(
+            tmp_path / "v.npz", Volume(np.ones(3), np.zeros(3), np.zeros(3), -np.ones(3), np.ones(3))
+        )
 
 
 @pytest.fixture(scope="module")
@@ -132,7 +138,9 @@ def test_prompt_masks_match_ground_truth(tiny_capture):
         for point in obj["points"]:
             index = cameras.index_of(point["image"])
             image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
-            mask = prompt_mask(image, depth[index], cameras.K[index], point["u"], point["v"], pixel_offset=0.5)
+            mask = prompt_mask(
+                image, depth[index], cameras.K[index], point["u"], point["v"], pixel_offset=0.5
+            )
             scores.append(iou(mask, truth[index] == obj["id"]))
     assert np.median(scores) >= 0.85 and min(scores) >= 0.5, scores
 
@@ -152,7 +160,9 @@ def cube_beside_wall(points):
     """A 0.1 m cube on a floor slab (z in [-0.05, 0]) with a container wall 5 cm to its side."""
     p = np.asarray(points)
     cube = np.all(np.abs(p - [0.0, 0.0, 0.05]) <= 0.05, axis=1)
-    wall = (p[:, 0] >= 0.10) & (p[:, 0] <= 0.12) & (np.abs(p[:, 1]) <= 0.3) & (p[:, 2] >= 0) & (p[:, 2] <= 0.15)
+    wall = (
+        (p[:, 0] >= 0.10) & (p[:, 0] <= 0.12) & (np.abs(p[:, 1]) <= 0.3) & (p[:, 2] >= 0) & (p[:, 2] <= 0.15)
+    )
     floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
     return np.where(cube | wall | floor, 1000.0, 0.0)
 
@@ -176,7 +186,9 @@ def test_the_visual_hull_cuts_what_one_mask_took_too_much():
 
     rng = np.random.default_rng(0)
     cube = rng.uniform(-0.05, 0.05, (20000, 3)) + [0, 0, 0.05]
-    wall_piece = np.stack([rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1)
+    wall_piece = np.stack(
+        [rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1
+    )
     K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
     views = []
     for index, azimuth in enumerate(np.radians([200, 290, 20])):
@@ -201,25 +213,32 @@ def test_the_visual_hull_cuts_what_one_mask_took_too_much():
 
 def test_a_faint_support_is_found():
     """A support the field holds only faintly (a peak of a fifth of the threshold) still counts."""
+
     def faint_floor(points):
         z = np.asarray(points)[:, 2]
-        return 10.0 * np.exp(-((z - 0.02) / 0.01) ** 2)
+        return 10.0 * np.exp(-(((z - 0.02) / 0.01) ** 2))
 
     height = mx.support_height(faint_floor, [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1)
     assert height == pytest.approx(0.02, abs=0.01)
-    assert mx.support_height(lambda p: np.full(len(p), 1.0), [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1) is None
+    assert (
+        mx.support_height(lambda p: np.full(len(p), 1.0), [-0.1, -0.1, 0.03], [0.1, 0.1, 0.2], 50.0, 64, 0.1)
+        is None
+    )
 
 
 def with_soft_floor(density):
     """The field with the floor's density fading out over ~1 cm above it, as a NeRF's does."""
+
     def soft(points):
         z = np.asarray(points)[:, 2]
-        return np.maximum(density(points), np.where(z > 0, 2000.0 * np.exp(-(z / 0.006) ** 2), 0.0))
+        return np.maximum(density(points), np.where(z > 0, 2000.0 * np.exp(-((z / 0.006) ** 2)), 0.0))
 
     return soft
 
 
-@pytest.mark.parametrize("density", [cube_beside_wall, with_soft_floor(cube_beside_wall)], ids=["hard-floor", "soft-floor"])
+@pytest.mark.parametrize(
+    "density", [cube_beside_wall, with_soft_floor(cube_beside_wall)], ids=["hard-floor", "soft-floor"]
+)
 def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
     """The object's base, left out of the splat (hull_mask_clearance), is filled in from colour."""
     import cv2
@@ -229,11 +248,18 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
 
     rng = np.random.default_rng(1)
     cube = rng.uniform(-0.05, 0.05, (20000, 3)) + [0, 0, 0.05]
-    wall_piece = np.stack([rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1)
+    wall_piece = np.stack(
+        [rng.uniform(0.10, 0.12, 4000), rng.uniform(-0.08, 0.08, 4000), rng.uniform(0, 0.15, 4000)], 1
+    )
     K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
     views, truths = [], []
     for index, azimuth in enumerate(np.radians([200, 290, 20])):
-        view = mx.View(f"v{index}", K, look_at_c2w([0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45], [0, 0, 0.05]), np.ones((120, 160)))
+        view = mx.View(
+            f"v{index}",
+            K,
+            look_at_c2w([0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45], [0, 0, 0.05]),
+            np.ones((120, 160)),
+        )
         truth = projected_mask(cube, view)
         image = rng.integers(90, 140, (120, 160, 3)).astype(np.uint8)  # grey clutter
         image[truth] = [200, 40, 30]  # a red cube
@@ -241,7 +267,9 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
         if index == 0:  # takes in the wall
             view.mask = projected_mask(np.concatenate([cube, wall_piece]), view)
         else:  # misses the rim
-            view.mask = cv2.erode(truth.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2 if index == 1 else 1).astype(bool)
+            view.mask = cv2.erode(
+                truth.astype(np.uint8), np.ones((3, 3), np.uint8), iterations=2 if index == 1 else 1
+            ).astype(bool)
         views.append(view)
     before = [iou(v.mask, t) for v, t in zip(views, truths)]
     settings = mx.ExtractionSettings()
@@ -264,10 +292,14 @@ def cube_on(floor_density):
 @pytest.mark.parametrize("floor_density, plane", [(20.0, True), (1000.0, False)])
 def test_a_faint_support_becomes_a_plane_in_the_environment(floor_density, plane):
     settings = mx.ExtractionSettings(resolution=48, faces=0, smoothing=0)
-    extraction = mx.extract_object(cube_on(floor_density), np.array([[-0.07, -0.07, -0.01], [0.07, 0.07, 0.12]]), settings)
+    extraction = mx.extract_object(
+        cube_on(floor_density), np.array([[-0.07, -0.07, -0.01], [0.07, 0.07, 0.12]]), settings
+    )
     assert extraction.support_z == pytest.approx(0.0, abs=0.01)
     environment = extraction.environment_mesh
-    flat_at_support = (np.abs(environment.triangles[:, :, 2] - extraction.support_z).max(axis=1) < 1e-9) & (environment.face_normals[:, 2] > 0.99)
+    flat_at_support = (np.abs(environment.triangles[:, :, 2] - extraction.support_z).max(axis=1) < 1e-9) & (
+        environment.face_normals[:, 2] > 0.99
+    )
     assert flat_at_support.any() == plane
     # either way, something is under the cube's middle at the support's height
     hits, _, _ = environment.ray.intersects_location([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])

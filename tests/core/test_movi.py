@@ -133,7 +133,9 @@ def test_principal_frame_recovers_a_rotated_inertia():
     found, quaternion = movi.principal_frame(rotation @ np.diag(moments) @ rotation.T)
     axes = quat_to_matrix(quaternion)
     np.testing.assert_allclose(found, moments, rtol=1e-9)
-    np.testing.assert_allclose(axes @ np.diag(found) @ axes.T, rotation @ np.diag(moments) @ rotation.T, atol=1e-9)
+    np.testing.assert_allclose(
+        axes @ np.diag(found) @ axes.T, rotation @ np.diag(moments) @ rotation.T, atol=1e-9
+    )
 
 
 def test_prepared_l_shape_has_its_compound_inertia(tmp_path, shapes):
@@ -181,8 +183,10 @@ def record(frames=10, objects=2, **arrays):
     quaternions = np.zeros((frames, objects, 4))
     quaternions[..., 0] = 1.0
     fields = dict(
-        positions=positions, quaternions=quaternions,
-        velocities=np.zeros((frames, objects, 3)), angular_velocities=np.zeros((frames, objects, 3)),
+        positions=positions,
+        quaternions=quaternions,
+        velocities=np.zeros((frames, objects, 3)),
+        angular_velocities=np.zeros((frames, objects, 3)),
         min_pair_distance=np.full(frames, np.inf),
     )
     fields.update(arrays)
@@ -266,8 +270,12 @@ def test_shards_and_parallel_jobs_reproduce_the_whole_run(shapes):
     by_index = {r.index: r for r in shard_0 + shard_1}
     assert sorted(by_index) == [0, 1, 2, 3]
     for result in whole:
-        np.testing.assert_array_equal(result.trajectory.positions, by_index[result.index].trajectory.positions)
-        np.testing.assert_array_equal(result.trajectory.quaternions, by_index[result.index].trajectory.quaternions)
+        np.testing.assert_array_equal(
+            result.trajectory.positions, by_index[result.index].trajectory.positions
+        )
+        np.testing.assert_array_equal(
+            result.trajectory.quaternions, by_index[result.index].trajectory.quaternions
+        )
 
 
 def test_a_crowded_scene_counts_placement_drops_and_gives_up(shapes):
@@ -290,7 +298,9 @@ def test_trajectory_fields_follow_the_format(shapes, tmp_path):
     trajectory = back.trajectories["00000"]
     objects = trajectory.num_objects
     assert trajectory.num_frames == 16 and back.dt == pytest.approx(1 / 30)
-    assert trajectory.mesh_names[0] == "floor" and trajectory.static.tolist() == [True] + [False] * (objects - 1)
+    assert trajectory.mesh_names[0] == "floor" and trajectory.static.tolist() == [True] + [False] * (
+        objects - 1
+    )
     assert trajectory.mass[0] == 0 and np.all(trajectory.mass[1:] > 0)
     assert set(back.meshes) == {"floor"} | {str(n) for t in back.trajectories.values() for n in t.mesh_names}
     np.testing.assert_allclose(back.meshes["floor"].vertices.max(axis=0), [40, 40, 0.1])
@@ -305,7 +315,11 @@ def test_masses_follow_density_and_scale(shapes):
     config = small_config(duration=0.1)
     (result,) = simulate(shapes, config, 5, [0])
     t = result.trajectory
-    volumes = {"cube": 8.0, "ball": movi.mass_properties(shapes[1].vertices, shapes[1].faces, [])[0], "ell": 3.0}
+    volumes = {
+        "cube": 8.0,
+        "ball": movi.mass_properties(shapes[1].vertices, shapes[1].faces, [])[0],
+        "ell": 3.0,
+    }
     density = {0.4: 2.7, 0.8: 1.1}  # metal and rubber, told apart by their friction
     objects = zip(t.mesh_names[1:], t.scales[1:], t.friction[1:])
     expected = [density[round(float(f), 1)] * s**3 * volumes[n] for n, s, f in objects]
@@ -333,8 +347,10 @@ def tosses(shapes):
 def lowest_heights(trajectory, by_name):
     hulls = [by_name[str(n)].vertices for n in trajectory.mesh_names[1:]]
     return movi.lowest_vertex_heights(
-        trajectory.positions[:, 1:].astype(float), trajectory.quaternions[:, 1:].astype(float),
-        trajectory.scales[1:].astype(float), hulls,
+        trajectory.positions[:, 1:].astype(float),
+        trajectory.quaternions[:, 1:].astype(float),
+        trajectory.scales[1:].astype(float),
+        hulls,
     )
 
 
@@ -431,7 +447,9 @@ def test_a_tumbling_l_keeps_its_angular_momentum_and_energy(tmp_path, shapes):
         record = simulator._run(bodies, [spec])
         grid = np.stack(np.meshgrid(*[np.linspace(-1.2, 1.2, 9)] * 2), -1).reshape(-1, 2)
         probes = record.positions[-1, 1, :2] + grid
-        rays = simulator.pybullet.rayTestBatch([[x, y, 30.0] for x, y in probes], [[x, y, 10.0] for x, y in probes])
+        rays = simulator.pybullet.rayTestBatch(
+            [[x, y, 30.0] for x, y in probes], [[x, y, 10.0] for x, y in probes]
+        )
     world = transform_points(ell.shape.vertices, 1.0, record.positions[-1, 1], record.quaternions[-1, 1])
     expected = top_surface_heights(world, ell.shape.faces, probes)
     hit = np.array([ray[0] >= 0 for ray in rays])
@@ -444,7 +462,9 @@ def test_a_tumbling_l_keeps_its_angular_momentum_and_energy(tmp_path, shapes):
     inertia = 1.1 * rotations @ ell.inertia @ np.swapaxes(rotations, -1, -2)
     momentum = np.einsum("tij,tj->ti", inertia, record.angular_velocities[:, 1])
     energy = 0.5 * np.einsum("ti,ti->t", record.angular_velocities[:, 1], momentum)
-    np.testing.assert_allclose(momentum, momentum[:1].repeat(len(momentum), 0), atol=0.02 * np.linalg.norm(momentum[0]))
+    np.testing.assert_allclose(
+        momentum, momentum[:1].repeat(len(momentum), 0), atol=0.02 * np.linalg.norm(momentum[0])
+    )
     np.testing.assert_allclose(energy, energy[0], rtol=0.02)
     assert np.ptp(record.angular_velocities[:, 1], axis=0).max() > 0.5  # it does tumble
 

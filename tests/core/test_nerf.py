@@ -18,9 +18,19 @@ from fignetctl.core.nerf.training import make_trainer
 from fignetctl.errors import FignetError, FormatError
 
 TINY = NerfConfig(
-    max_image_side=32, holdout_every=4, grid_resolution_initial=24, grid_resolution=24, upsample_steps=(),
-    feature_resolution=12, feature_channels=6, mlp_width=16, rays_per_batch=256, steps=30,
-    occupancy_warmup=10, occupancy_every=5, checkpoint_every=1000,
+    max_image_side=32,
+    holdout_every=4,
+    grid_resolution_initial=24,
+    grid_resolution=24,
+    upsample_steps=(),
+    feature_resolution=12,
+    feature_channels=6,
+    mlp_width=16,
+    rays_per_batch=256,
+    steps=30,
+    occupancy_warmup=10,
+    occupancy_every=5,
+    checkpoint_every=1000,
 )
 BOUNDS = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
@@ -41,7 +51,12 @@ class ConstantBox:
 
 def orbit(n=8, radius=3.0, width=32, height=24, focal=30.0):
     K = np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1.0]])
-    c2w = [look_at_c2w((radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a)), (0.0, 0.0, 0.0)) for a in np.linspace(0, 2 * math.pi, n, endpoint=False)]
+    c2w = [
+        look_at_c2w(
+            (radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a)), (0.0, 0.0, 0.0)
+        )
+        for a in np.linspace(0, 2 * math.pi, n, endpoint=False)
+    ]
     return np.repeat(K[None], n, 0), np.array(c2w)
 
 
@@ -58,7 +73,11 @@ def solid_box_model(config=TINY, half=0.5, raw=14.0):
         model.field.density_grid[0, 0] = torch.where(inside, torch.tensor(raw), torch.tensor(-20.0))
         fx, fy, fz = (torch.linspace(-1, 1, s) for s in model.field.feature_grid.shape[2:])
         gx, gy, gz = torch.meshgrid(fx, fy, fz, indexing="ij")
-        model.field.feature_grid[0, 0], model.field.feature_grid[0, 1], model.field.feature_grid[0, 2] = 3 * gx, 3 * gy, 3 * gz
+        model.field.feature_grid[0, 0], model.field.feature_grid[0, 1], model.field.feature_grid[0, 2] = (
+            3 * gx,
+            3 * gy,
+            3 * gz,
+        )
     model.refresh_occupancy()
     return model.eval()
 
@@ -84,6 +103,7 @@ def write_synthetic_scene(folder, n=8, width=32, height=24):
 
 
 # -- rendering against exact answers ---------------------------------------------------------
+
 
 def test_constant_density_gives_beer_lambert_opacity_and_expected_depth():
     sigma, step = 1.5, 1e-3
@@ -138,7 +158,9 @@ def test_density_inside_outside_and_numpy_in_numpy_out():
 def test_identity_warp_equals_no_warp_and_a_shift_moves_the_box():
     model = solid_box_model()
     K, c2w = orbit(1)
-    origins, directions = (torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32) for a in pixel_rays(K[0], c2w[0], 32, 24))
+    origins, directions = (
+        torch.as_tensor(a.reshape(-1, 3), dtype=torch.float32) for a in pixel_rays(K[0], c2w[0], 32, 24)
+    )
     with torch.no_grad():
         plain = model.render_rays(origins, directions)
         warped = model.render_rays(origins, directions, warp=lambda x: x.clone())
@@ -155,7 +177,9 @@ def test_scaled_intrinsics_keep_the_ray_through_the_same_image_point():
 
 
 def test_scene_bounds_cover_points_and_stop_at_surrounding_cameras():
-    points = np.random.default_rng(0).uniform([-50, -50, 0], [50, 50, 0.5], (500, 3))  # a floor to the horizon
+    points = np.random.default_rng(0).uniform(
+        [-50, -50, 0], [50, 50, 0.5], (500, 3)
+    )  # a floor to the horizon
     _, c2w = orbit(8, radius=2.0)
     low, high = scene_bounds(points, c2w, margin=0.1)
     assert high[0] - low[0] < 15.0  # limited to the camera ring (+ its look-at distance) along x, y
@@ -163,6 +187,7 @@ def test_scene_bounds_cover_points_and_stop_at_surrounding_cameras():
 
 
 # -- files ------------------------------------------------------------------------------------
+
 
 def test_save_load_round_trip_renders_the_same(tmp_path):
     model = solid_box_model()
@@ -186,6 +211,7 @@ def test_corrupt_or_foreign_nerf_file_is_refused_in_one_line(tmp_path, content):
 
 
 # -- training ---------------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
@@ -218,7 +244,11 @@ def test_resume_continues_exactly(scene, tmp_path):
 
 def test_nan_loss_is_a_one_line_error(scene):
     images, _, cameras = scene
-    trainer = make_trainer(images, cameras, dataclasses.replace(TINY, learning_rate_grid=float("nan"), learning_rate_mlp=float("nan")))
+    trainer = make_trainer(
+        images,
+        cameras,
+        dataclasses.replace(TINY, learning_rate_grid=float("nan"), learning_rate_mlp=float("nan")),
+    )
     with pytest.raises(FignetError, match="loss became nan"):
         trainer.run()
 
@@ -236,13 +266,27 @@ def test_diffuse_growing_colour_grid_with_termination_resumes_and_round_trips(sc
     """The fast preset's shape: no MLP, the colour grid grows with the density grid, early ray
     termination in training; a resumed run matches and the file loads at the grown sizes."""
     images, _, cameras = scene
-    config = dataclasses.replace(TINY, steps=12, occupancy_warmup=3, occupancy_every=3, grid_resolution_initial=12, grid_resolution=24,
-                                 upsample_steps=(6,), feature_resolution_initial=8, feature_resolution=16, feature_channels=3, mlp_width=0,
-                                 transmittance_threshold=1e-3)
+    config = dataclasses.replace(
+        TINY,
+        steps=12,
+        occupancy_warmup=3,
+        occupancy_every=3,
+        grid_resolution_initial=12,
+        grid_resolution=24,
+        upsample_steps=(6,),
+        feature_resolution_initial=8,
+        feature_resolution=16,
+        feature_channels=3,
+        mlp_width=0,
+        transmittance_threshold=1e-3,
+    )
     straight = make_trainer(images, cameras, config)
     straight.run()
     assert straight.model.field.colour_mlp is None
-    assert max(straight.model.field.feature_grid.shape[2:]) == 16 and max(straight.model.field.density_grid.shape[2:]) == 24
+    assert (
+        max(straight.model.field.feature_grid.shape[2:]) == 16
+        and max(straight.model.field.density_grid.shape[2:]) == 24
+    )
     first = make_trainer(images, cameras, config)
     first.run(tmp_path / "nerf.pt", until_step=8)
     resumed = make_trainer(images, cameras, config, resume_from=tmp_path / "nerf.pt")

@@ -100,7 +100,9 @@ def test_trajectory_reader_on_more_damage_patterns(tmp_path):
     """Bit flips, zeroed runs and 0xff runs on plain and gzip files (seeds beside the above)."""
     rng = np.random.default_rng(7)
     for compression in (None, "gzip"):
-        original = write_trajectories(tmp_path / "t.h5", box_drop_file(frames=6), compression=compression).read_bytes()
+        original = write_trajectories(
+            tmp_path / "t.h5", box_drop_file(frames=6), compression=compression
+        ).read_bytes()
         for index in range(40):
             damaged = np.frombuffer(original, np.uint8).copy()
             start = int(rng.integers(0, len(original)))
@@ -146,7 +148,9 @@ def _nerf_file(path):
     from fignetctl.core.nerf.io import save_nerf
     from fignetctl.core.nerf.model import NerfModel
 
-    config = NerfConfig(grid_resolution_initial=8, grid_resolution=8, feature_resolution=8, feature_channels=4, mlp_width=8)
+    config = NerfConfig(
+        grid_resolution_initial=8, grid_resolution=8, feature_resolution=8, feature_channels=4, mlp_width=8
+    )
     return save_nerf(path, NerfModel(config, [[-1, -1, -1], [1, 1, 1]]))
 
 
@@ -196,33 +200,60 @@ def _npz_with(tmp_path, make, name, **changes):
     return path
 
 
-@pytest.mark.parametrize("changes", [
-    {"K": np.array([["a"] * 3] * 3)}, {"K": np.zeros((8, 3, 3)) + 1j}, {"points": np.arange(4.0)},
-    {"point_colors": np.array(["x"] * 5)}, {"format_version": np.array("1")}, {"format_version": np.array(1.5)},
-    {"width": np.arange(3)}, {"width": np.array("wide")}, {"c2w": np.full((8, 4, 4), np.nan)},
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"K": np.array([["a"] * 3] * 3)},
+        {"K": np.zeros((8, 3, 3)) + 1j},
+        {"points": np.arange(4.0)},
+        {"point_colors": np.array(["x"] * 5)},
+        {"format_version": np.array("1")},
+        {"format_version": np.array(1.5)},
+        {"width": np.arange(3)},
+        {"width": np.array("wide")},
+        {"c2w": np.full((8, 4, 4), np.nan)},
+    ],
+)
 def test_cameras_npz_with_wrong_fields(tmp_path, changes):
     from fignetctl.core.cameras import read_cameras
 
     _refuses_clearly(read_cameras, _npz_with(tmp_path, _cameras_file, "cameras.npz", **changes), FormatError)
 
 
-@pytest.mark.parametrize("changes", [
-    {"lower": np.array(["a", "b", "c"])}, {"lower": np.zeros(3) + 1j}, {"settings": np.array("[1, 2]")},
-    {"settings": np.array("{")}, {"object_mesh": np.zeros((2, 2))}, {"environment_origin": np.array("x")},
-    {"format_version": np.array("1")}, {"origin": np.zeros(4)},
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"lower": np.array(["a", "b", "c"])},
+        {"lower": np.zeros(3) + 1j},
+        {"settings": np.array("[1, 2]")},
+        {"settings": np.array("{")},
+        {"object_mesh": np.zeros((2, 2))},
+        {"environment_origin": np.array("x")},
+        {"format_version": np.array("1")},
+        {"origin": np.zeros(4)},
+    ],
+)
 def test_volume_npz_with_wrong_fields(tmp_path, changes):
     from fignetctl.core.volume import read_volume
 
     _refuses_clearly(read_volume, _npz_with(tmp_path, _volume_file, "volume.npz", **changes), FormatError)
 
 
-@pytest.mark.parametrize("changes", [
-    {"config": "{"}, {"config": "[1]"}, {"config": {"a": 1}}, {"bounds": [[0, 0], [1, 1]]},
-    {"bounds": [[1, 1, 1], [-1, -1, -1]]}, {"bounds": [[float("nan")] * 3, [1] * 3]},
-    {"density_shape": [-1, 8, 8]}, {"density_shape": [800, 800, 800]}, {"model": {}}, {"metrics": "{"},
-])
+@pytest.mark.parametrize(
+    "changes",
+    [
+        {"config": "{"},
+        {"config": "[1]"},
+        {"config": {"a": 1}},
+        {"bounds": [[0, 0], [1, 1]]},
+        {"bounds": [[1, 1, 1], [-1, -1, -1]]},
+        {"bounds": [[float("nan")] * 3, [1] * 3]},
+        {"density_shape": [-1, 8, 8]},
+        {"density_shape": [800, 800, 800]},
+        {"model": {}},
+        {"metrics": "{"},
+    ],
+)
 def test_nerf_file_with_wrong_fields(tmp_path, changes):
     import torch
 
@@ -238,28 +269,50 @@ def test_model_file_with_wrong_fields(tmp_path):
 
     simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1)))
     payload = torch.load(save_checkpoint(tmp_path / "m.pt", simulator), weights_only=True)
-    nan_weights = {k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in payload["model"].items()}
-    for index, changes in enumerate([
-        {"simulator_config": "{"}, {"simulator_config": "[1]"}, {"simulator_config": {"a": 1}},
-        {"simulator_config": payload["simulator_config"].replace("0.1", "NaN")}, {"model": {}},
-        {"model": torch.zeros(3)}, {"model": nan_weights},
-    ]):
+    nan_weights = {
+        k: torch.full_like(v, float("nan")) if v.is_floating_point() else v
+        for k, v in payload["model"].items()
+    }
+    for index, changes in enumerate(
+        [
+            {"simulator_config": "{"},
+            {"simulator_config": "[1]"},
+            {"simulator_config": {"a": 1}},
+            {"simulator_config": payload["simulator_config"].replace("0.1", "NaN")},
+            {"model": {}},
+            {"model": torch.zeros(3)},
+            {"model": nan_weights},
+        ]
+    ):
         torch.save({**payload, **changes}, tmp_path / f"changed-{index}.pt")
         _refuses_clearly(load_checkpoint, tmp_path / f"changed-{index}.pt", FormatError)
     torch.save({**payload, "training_state": "garbage"}, tmp_path / "state.pt")
-    _refuses_clearly(lambda p: load_checkpoint(p, with_training_state=True), tmp_path / "state.pt", FormatError)
+    _refuses_clearly(
+        lambda p: load_checkpoint(p, with_training_state=True), tmp_path / "state.pt", FormatError
+    )
     _refuses_clearly(load_checkpoint, _nerf_file(tmp_path / "nerf.pt"), FormatError)
 
 
 _TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
 
 
-@pytest.mark.parametrize("text", [
-    "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "v inf 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
-    "v 1e300 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", _TRIANGLE + "f 1 2 9\n", _TRIANGLE + "f -1 -2 -7\n",
-    _TRIANGLE, "", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n",
-    "hello world\nf a b c\n", "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n", "\x00\xff\xfe" * 100,
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        "v inf 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        "v 1e300 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+        _TRIANGLE + "f 1 2 9\n",
+        _TRIANGLE + "f -1 -2 -7\n",
+        _TRIANGLE,
+        "",
+        "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n",
+        "v 0 0 0\nv 0 0 0\nv 0 0 0\nf 1 2 3\n",
+        "hello world\nf a b c\n",
+        "v 0 0\nv 1 0\nv 0 1\nf 1 2 3\n",
+        "\x00\xff\xfe" * 100,
+    ],
+)
 def test_obj_that_is_no_usable_mesh(tmp_path, text):
     from fignetctl.core.mesh_extraction import load_obj
 
@@ -281,19 +334,45 @@ def test_obj_with_holes_and_some_zero_area_faces_is_read(tmp_path):
     assert len(mesh.faces) == len(faces) and np.all(np.isfinite(mesh.vertices))
 
 
-@pytest.mark.parametrize("document", [
-    [1, 2], {"format": "fignetctl.prompts", "format_version": 1, "objects": {"a": 1}},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": "abc"}]},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": []},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
-        {"image": "v0.png", "u": 1e400, "v": 2}, {"image": "v1.png", "u": 1, "v": 2}]}]},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
-        {"image": "v0.png", "u": float("nan"), "v": 2}]}]},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
-        {"image": "v0.png", "u": 1e30, "v": 2}, {"image": "v1.png", "u": -5, "v": 2}]}]},
-    {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": [
-        {"image": "nope.png", "u": 1, "v": 2}]}]},
-])
+@pytest.mark.parametrize(
+    "document",
+    [
+        [1, 2],
+        {"format": "fignetctl.prompts", "format_version": 1, "objects": {"a": 1}},
+        {"format": "fignetctl.prompts", "format_version": 1, "objects": [{"name": "a", "points": "abc"}]},
+        {"format": "fignetctl.prompts", "format_version": 1, "objects": []},
+        {
+            "format": "fignetctl.prompts",
+            "format_version": 1,
+            "objects": [
+                {
+                    "name": "a",
+                    "points": [{"image": "v0.png", "u": 1e400, "v": 2}, {"image": "v1.png", "u": 1, "v": 2}],
+                }
+            ],
+        },
+        {
+            "format": "fignetctl.prompts",
+            "format_version": 1,
+            "objects": [{"name": "a", "points": [{"image": "v0.png", "u": float("nan"), "v": 2}]}],
+        },
+        {
+            "format": "fignetctl.prompts",
+            "format_version": 1,
+            "objects": [
+                {
+                    "name": "a",
+                    "points": [{"image": "v0.png", "u": 1e30, "v": 2}, {"image": "v1.png", "u": -5, "v": 2}],
+                }
+            ],
+        },
+        {
+            "format": "fignetctl.prompts",
+            "format_version": 1,
+            "objects": [{"name": "a", "points": [{"image": "nope.png", "u": 1, "v": 2}]}],
+        },
+    ],
+)
 def test_prompts_json_of_the_wrong_shape(tmp_path, document):
     import json
 
@@ -319,11 +398,14 @@ def test_trajectory_file_of_the_wrong_shape(tmp_path):
         def change(f):
             del f[group][name]
             f[group].create_dataset(name, data=value)
+
         return change
 
     def huge_sparse_positions(f):
         del f["trajectories/00000/positions"]
-        f["trajectories/00000"].create_dataset("positions", shape=(10**7, 10**6, 3), dtype="f4", chunks=(1, 1000, 3))
+        f["trajectories/00000"].create_dataset(
+            "positions", shape=(10**7, 10**6, 3), dtype="f4", chunks=(1, 1000, 3)
+        )
 
     def mesh_is_a_dataset(f):
         del f["meshes/box"]
@@ -334,8 +416,10 @@ def test_trajectory_file_of_the_wrong_shape(tmp_path):
         replaced("trajectories/00000", "mesh_names", np.arange(2)),
         replaced("trajectories/00000", "mass", np.zeros(2, dtype=[("a", "f4"), ("b", "i4")])),
         replaced("meshes/box", "vertices", np.zeros((3, 3), np.complex64)),
-        mesh_is_a_dataset, huge_sparse_positions,
-        lambda f: f.attrs.__setitem__("dt", "fast"), lambda f: f.attrs.__setitem__("gravity", "down"),
+        mesh_is_a_dataset,
+        huge_sparse_positions,
+        lambda f: f.attrs.__setitem__("dt", "fast"),
+        lambda f: f.attrs.__setitem__("gravity", "down"),
     ]
     for index, change in enumerate(changes):
         path = tmp_path / f"changed-{index}.h5"

@@ -20,8 +20,14 @@ CAMERA_HEIGHT = 3.0
 def solid_field(resolution=41):
     """NerfModel on [-1, 1]³: an opaque red box (BOX_LOWER..BOX_UPPER) and a green floor slab
     below z = FLOOR_TOP, empty elsewhere, black background, occupancy refreshed."""
-    config = NerfConfig(grid_resolution_initial=resolution, grid_resolution=resolution, feature_resolution=resolution,
-                        feature_channels=4, mlp_width=8, background="black")
+    config = NerfConfig(
+        grid_resolution_initial=resolution,
+        grid_resolution=resolution,
+        feature_resolution=resolution,
+        feature_channels=4,
+        mlp_width=8,
+        background="black",
+    )
     torch.manual_seed(0)
     model = NerfModel(config, [[-1, -1, -1], [1, 1, 1]])
     axis = torch.linspace(-1, 1, resolution)
@@ -50,7 +56,9 @@ def motion_of(positions, quaternions=None, origin=None):
     """ObjectMotion of the box, rest origin at its centre."""
     origin = 0.5 * (BOX_LOWER + BOX_UPPER) if origin is None else origin
     positions = np.asarray(positions, np.float64).reshape(-1, 3)
-    quaternions = np.tile([1.0, 0, 0, 0], (len(positions), 1)) if quaternions is None else np.asarray(quaternions)
+    quaternions = (
+        np.tile([1.0, 0, 0, 0], (len(positions), 1)) if quaternions is None else np.asarray(quaternions)
+    )
     from fignetctl.core.transforms import quat_to_matrix
 
     return rerender.ObjectMotion(quat_to_matrix(quaternions), positions, origin, "box", 0.1)
@@ -84,7 +92,9 @@ def test_background_is_the_models_own_render(field):
     np.testing.assert_allclose(background["rgb"].reshape(reference.rgb.shape), reference.rgb, atol=1e-5)
     np.testing.assert_allclose(background["depth"].reshape(reference.depth.shape), reference.depth, atol=1e-5)
     v, u = pixel_of(camera, REST)
-    assert reference.rgb[v, u, 0] > 0.9 and reference.depth[v, u] == pytest.approx(CAMERA_HEIGHT + 0.2, abs=0.04)
+    assert reference.rgb[v, u, 0] > 0.9 and reference.depth[v, u] == pytest.approx(
+        CAMERA_HEIGHT + 0.2, abs=0.04
+    )
 
 
 @pytest.mark.parametrize("mode", rerender.MODES)
@@ -168,7 +178,9 @@ def test_object_moved_out_of_the_scene_box_stays_whole(field):
     frame = rerender.Rerenderer(field, VOLUME, motion_of([REST + [0, 0, 1.4]]), "move").render(camera, 0)
     v, u = pixel_of(camera, REST + [0, 0, 1.4])
     assert frame.rgb[v, u, 0] > 0.9
-    assert frame.depth[v, u] == pytest.approx(CAMERA_HEIGHT - (BOX_UPPER[2] + 1.4), abs=0.04)  # top above the scene box
+    assert frame.depth[v, u] == pytest.approx(
+        CAMERA_HEIGHT - (BOX_UPPER[2] + 1.4), abs=0.04
+    )  # top above the scene box
 
 
 def test_warp_maps_points_as_written(field):

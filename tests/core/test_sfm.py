@@ -127,7 +127,9 @@ def textured_frame(rng, shift, size=(96, 128)):
 
 
 def write_video(path, frames, fps=10):
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (frames[0].shape[1], frames[0].shape[0]))
+    writer = cv2.VideoWriter(
+        str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (frames[0].shape[1], frames[0].shape[0])
+    )
     assert writer.isOpened()
     for frame in frames:
         writer.write(frame)

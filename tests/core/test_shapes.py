@@ -186,8 +186,12 @@ def test_bad_input_raises_fignet_error(shape_cache, tmp_path):
     with pytest.raises(FignetError, match="teapot"):
         shapes.load_shapes("movi-b", names=["teapot"], cache_dir=shape_cache)
     flat = shapes.ShapeRecipe(
-        name="flat", build=lambda: ([np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])], None),
-        source="test", input_files=(), largest_side=2.0, vertex_range=(0, 100),
+        name="flat",
+        build=lambda: ([np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])], None),
+        source="test",
+        input_files=(),
+        largest_side=2.0,
+        vertex_range=(0, 100),
     )
     with pytest.raises(FignetError, match="flat"):
         shapes.cached_asset(flat, tmp_path)
@@ -220,7 +224,9 @@ def test_movi_c_limit_loads_normalised_shapes(shape_cache):
 
 
 def test_movi_c_scans_rest_on_the_floor(shape_cache):
-    scans = shapes.load_shapes("movi-c", split="all", names=["duck", "mug", "teddy", "lego"], cache_dir=shape_cache)
+    scans = shapes.load_shapes(
+        "movi-c", split="all", names=["duck", "mug", "teddy", "lego"], cache_dir=shape_cache
+    )
     for asset in scans:
         assert abs(shapes.resting_gap(asset, scale=2.0, cache_dir=shape_cache)) < 5 * MILLIMETRE, asset.name
 

@@ -18,7 +18,10 @@ def brute_force_front(seconds, errors):
         if not finite[i]:
             continue
         beaten = any(
-            finite[j] and seconds[j] <= seconds[i] and errors[j] <= errors[i] and (seconds[j] < seconds[i] or errors[j] < errors[i])
+            finite[j]
+            and seconds[j] <= seconds[i]
+            and errors[j] <= errors[i]
+            and (seconds[j] < seconds[i] or errors[j] < errors[i])
             for j in range(n)
         )
         front[i] = not beaten
@@ -44,7 +47,12 @@ def test_pareto_front_small_cases():
 
 
 def point(setting, seconds, error):
-    return {"setting": setting, "seconds": median_iqr(seconds), "error": median_iqr(error), "extra": median_iqr([7.0])}
+    return {
+        "setting": setting,
+        "seconds": median_iqr(seconds),
+        "error": median_iqr(error),
+        "extra": median_iqr([7.0]),
+    }
 
 
 def test_higher_is_better_flips_the_accuracy_axis():
@@ -60,7 +68,11 @@ def test_median_iqr_ignores_non_finite_values():
 
 
 def test_write_result_json_csv_and_png(tmp_path):
-    points = [point(16, [0.1, 0.2, 0.3], [3.0, 4.0]), point("full", [1.0, 1.2], [2.0, 2.5]), point(64, [0.5], [5.0])]
+    points = [
+        point(16, [0.1, 0.2, 0.3], [3.0, 4.0]),
+        point("full", [1.0, 1.2], [2.0, 2.5]),
+        point(64, [0.5], [5.0]),
+    ]
     result = tradeoff.make_result("decimation", "faces", "seconds", "error (m)", points, "method", ["a note"])
     paths = [tmp_path / f"t.{ext}" for ext in ("json", "csv", "png")]
     tradeoff.write_result(result, *paths)
@@ -68,14 +80,34 @@ def test_write_result_json_csv_and_png(tmp_path):
     assert back["format"] == tradeoff.FORMAT and [p["pareto"] for p in back["points"]] == [True, True, False]
     rows = list(csv.reader(paths[1].open()))
     assert rows[0][:2] == ["setting", "seconds_median"] and rows[0][-1] == "extra"
-    assert rows[1][0] == "16" and float(rows[1][1]) == pytest.approx(0.2) and rows[1][9] == "1" and float(rows[1][-1]) == 7.0
+    assert (
+        rows[1][0] == "16"
+        and float(rows[1][1]) == pytest.approx(0.2)
+        and rows[1][9] == "1"
+        and float(rows[1][-1]) == 7.0
+    )
     assert paths[2].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.csv", "t.json", "t.png"]  # no temporary files left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "t.csv",
+        "t.json",
+        "t.png",
+    ]  # no temporary files left
 
 
 def test_nerf_steps_reads_a_learning_curve(tmp_path):
-    curve = {"machine": "m", "capture": "c", "results": [{"preset": "fast", "curve": [
-        {"step": 100, "train_seconds": 10.0, "held_out_psnr": 20.0}, {"step": 200, "train_seconds": 20.0, "held_out_psnr": 19.0}]}]}
+    curve = {
+        "machine": "m",
+        "capture": "c",
+        "results": [
+            {
+                "preset": "fast",
+                "curve": [
+                    {"step": 100, "train_seconds": 10.0, "held_out_psnr": 20.0},
+                    {"step": 200, "train_seconds": 20.0, "held_out_psnr": 19.0},
+                ],
+            }
+        ],
+    }
     path = tmp_path / "curve.json"
     path.write_text(json.dumps(curve))
     result = tradeoff.sweep_nerf_steps(path, tradeoff.QUICK)
@@ -104,7 +136,9 @@ def test_marching_cubes_sweep_on_an_analytic_sphere(tmp_path, monkeypatch):
 
         @staticmethod
         def density(points):
-            solid = (np.linalg.norm(points - centre, axis=1) < radius) | (points[:, 2] < 0.25)  # a ball over a floor
+            solid = (np.linalg.norm(points - centre, axis=1) < radius) | (
+                points[:, 2] < 0.25
+            )  # a ball over a floor
             return np.where(solid, 1000.0, 0.0)
 
     import fignetctl.core.nerf.io

@@ -54,7 +54,11 @@ def _corrupt(path, dataset, value):
     [
         ("trajectories/00000/mass", None, "trajectory '00000': missing field 'mass'"),
         ("trajectories/00000/friction", np.ones(3, np.float32), "field 'friction' must be \\(2,\\)"),
-        ("meshes/box/faces", np.array([[0, 1, 99]], np.int32), "mesh 'box': field 'faces' refers to vertex 99"),
+        (
+            "meshes/box/faces",
+            np.array([[0, 1, 99]], np.int32),
+            "mesh 'box': field 'faces' refers to vertex 99",
+        ),
     ],
 )
 def test_refuses_missing_or_malformed_fields(tmp_path, box_drop, dataset, value, message):

@@ -105,9 +105,13 @@ def test_baseline_scale():
 
 
 def test_camera_up_fallback_without_points():
-    truth = dataclasses.replace(table_scene(), points=np.zeros((0, 3)), point_colors=np.zeros((0, 3), np.uint8))
+    truth = dataclasses.replace(
+        table_scene(), points=np.zeros((0, 3)), point_colors=np.zeros((0, 3), np.uint8)
+    )
     rotation = random_rotation(np.random.default_rng(5))
-    aligned, alignment = wa.align(moved(truth, 2.0, rotation, np.ones(3)), wa.AlignmentSettings(camera_height=0.5))
+    aligned, alignment = wa.align(
+        moved(truth, 2.0, rotation, np.ones(3)), wa.AlignmentSettings(camera_height=0.5)
+    )
     assert alignment.gravity_source == "cameras"
     # The ring cameras look down 32°, so their mean up is tilted; it is only a fallback.
     # The mean up of cameras on a full ring, each tilted towards the centre, is vertical.

@@ -36,22 +36,37 @@ def scene_file(path, bodies, statics=()):
     names, positions, velocities, static = ["floor"], [[0, 0, -0.5]], [[0, 0, 0]], [True]
     for index, (mesh, position) in enumerate(statics):
         meshes[f"static{index}"] = mesh
-        names.append(f"static{index}"), positions.append(position), velocities.append([0, 0, 0]), static.append(True)
+        (
+            names.append(f"static{index}"),
+            positions.append(position),
+            velocities.append([0, 0, 0]),
+            static.append(True),
+        )
     for index, (mesh, position, velocity) in enumerate(bodies):
         meshes[f"body{index}"] = mesh
-        names.append(f"body{index}"), positions.append(position), velocities.append(velocity), static.append(False)
+        (
+            names.append(f"body{index}"),
+            positions.append(position),
+            velocities.append(velocity),
+            static.append(False),
+        )
     now = np.array(positions, np.float64)
     before = now - np.array(velocities, np.float64) * DT
     count = len(names)
     trajectory = Trajectory(
-        mesh_names=np.array(names, dtype=object), scales=np.ones(count, np.float32),
+        mesh_names=np.array(names, dtype=object),
+        scales=np.ones(count, np.float32),
         positions=np.stack([before, now]).astype(np.float32),
         quaternions=np.tile(np.array([1, 0, 0, 0], np.float32), (2, count, 1)),
-        static=np.array(static), mass=np.where(static, 0.0, ACTIVE.mass).astype(np.float32),
+        static=np.array(static),
+        mass=np.where(static, 0.0, ACTIVE.mass).astype(np.float32),
         friction=np.where(static, PASSIVE.friction, ACTIVE.friction).astype(np.float32),
         restitution=np.where(static, PASSIVE.restitution, ACTIVE.restitution).astype(np.float32),
     )
-    file_meshes = {name: Mesh(np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32)) for name, m in meshes.items()}
+    file_meshes = {
+        name: Mesh(np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))
+        for name, m in meshes.items()
+    }
     write_trajectories(path, TrajectoryFile(DT, np.array([0, 0, -9.81]), file_meshes, {"0": trajectory}))
     return path
 
@@ -69,8 +84,12 @@ def lowest_z(trajectory, meshes, frame):
     from fignetctl.core.transforms import transform_points
 
     return min(
-        transform_points(meshes[name].vertices, scale, trajectory.positions[frame, o], trajectory.quaternions[frame, o])[:, 2].min()
-        for o, (name, scale, static) in enumerate(zip(trajectory.mesh_names, trajectory.scales, trajectory.static))
+        transform_points(
+            meshes[name].vertices, scale, trajectory.positions[frame, o], trajectory.quaternions[frame, o]
+        )[:, 2].min()
+        for o, (name, scale, static) in enumerate(
+            zip(trajectory.mesh_names, trajectory.scales, trajectory.static)
+        )
         if not static
     )
 
@@ -95,9 +114,13 @@ def test_a_stack_of_three_boxes_stands(model, tmp_path):
 def test_a_thin_rod_lands_and_lies_on_the_floor(model, tmp_path):
     """A 2 m x 5 cm rod dropped flat from 0.5 m. Exact answer at rest: centre at z = 2.5 cm.
     Bound: within 10 cm of that after 120 steps, never more than 5 cm into the floor."""
-    path = scene_file(tmp_path / "rod.h5", [(trimesh.creation.box([2.0, 0.05, 0.05]), [0, 0, 0.5], [0, 0, 0])])
+    path = scene_file(
+        tmp_path / "rod.h5", [(trimesh.creation.box([2.0, 0.05, 0.05]), [0, 0, 0.5], [0, 0, 0])]
+    )
     trajectory = roll(model, path, 120)
-    meshes = {name: m for name, m in zip(["floor", "body0"], [FLOOR, trimesh.creation.box([2.0, 0.05, 0.05])])}
+    meshes = {
+        name: m for name, m in zip(["floor", "body0"], [FLOOR, trimesh.creation.box([2.0, 0.05, 0.05])])
+    }
     deepest = min(lowest_z(trajectory, meshes, frame) for frame in range(trajectory.num_frames))
     assert deepest > -0.05, f"{-deepest:.3f} m into the floor"
     assert abs(trajectory.positions[-1, 1, 2] - 0.025) < 0.10
@@ -108,7 +131,9 @@ def test_a_fast_box_does_not_tunnel_through_a_thin_plate(model, tmp_path):
     above the plate (no tunnelling), its lowest point never more than 10 cm through it."""
     plate = trimesh.creation.box([3.0, 3.0, 0.02])
     box = trimesh.creation.box([0.5, 0.5, 0.5])
-    path = scene_file(tmp_path / "plate.h5", [(box, [0, 0, 2.0], [0, 0, -8.0])], statics=[(plate, [0, 0, 0.99])])
+    path = scene_file(
+        tmp_path / "plate.h5", [(box, [0, 0, 2.0], [0, 0, -8.0])], statics=[(plate, [0, 0, 0.99])]
+    )
     trajectory = roll(model, path, 40)
     meshes = {"floor": FLOOR, "static0": plate, "body0": box}
     deepest = min(lowest_z(trajectory, meshes, frame) for frame in range(trajectory.num_frames))

@@ -67,7 +67,9 @@ def test_degenerate_against_degenerate_is_exact():
     other_point = np.array([[4.0, 6.0, 3.0]] * 3)
     segment = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
     crossing = np.array([[1.0, -1.0, 0.5], [1.0, 1.0, 0.5], [1.0, 0.0, 0.5]])
-    _, _, distance = closest_points_triangles(np.stack([point, point, segment]), np.stack([other_point, segment, crossing]))
+    _, _, distance = closest_points_triangles(
+        np.stack([point, point, segment]), np.stack([other_point, segment, crossing])
+    )
     np.testing.assert_allclose(distance, [5.0, np.hypot(2.0, 3.0), 0.5], rtol=0, atol=1e-12)
 
 
@@ -174,10 +176,24 @@ def _scene(box_size=1.0, gap=0.05, shift=(0.0, 0.0, 0.0)):
     from fignetctl.core.model.scene_graph import scene_geometry
 
     box = trimesh.creation.box(extents=[box_size] * 3)
-    floor = (np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], float) * max(box_size, 1.0), np.array([[0, 1, 2], [0, 2, 3]]))
-    geometry = scene_geometry([floor, (box.vertices, box.faces)], [1.0, 1.0], [True, False], np.array([[0, 0.5, 0.3], [1, 0.5, 0.5]]))
+    floor = (
+        np.array([[-3, -3, 0], [3, -3, 0], [3, 3, 0], [-3, 3, 0]], float) * max(box_size, 1.0),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
+    geometry = scene_geometry(
+        [floor, (box.vertices, box.faces)],
+        [1.0, 1.0],
+        [True, False],
+        np.array([[0, 0.5, 0.3], [1, 0.5, 0.5]]),
+    )
     height = 0.5 * box_size + gap
-    positions = np.array([[[0, 0, 0], [0.01, 0, height + 0.02]], [[0, 0, 0], [0.02, 0, height]], [[0, 0, 0], [0.02, 0, height]]])
+    positions = np.array(
+        [
+            [[0, 0, 0], [0.01, 0, height + 0.02]],
+            [[0, 0, 0], [0.02, 0, height]],
+            [[0, 0, 0], [0.02, 0, height]],
+        ]
+    )
     angle = np.array([0.0, 0.05, 0.05])
     quaternions = np.zeros((3, 2, 4))
     quaternions[:, 0, 0] = 1.0
@@ -188,7 +204,9 @@ def _scene(box_size=1.0, gap=0.05, shift=(0.0, 0.0, 0.0)):
 def _graph(geometry, positions, quaternions, radius):
     from fignetctl.core.model.scene_graph import GraphConfig, build_scene_graph
 
-    return build_scene_graph(geometry, positions, quaternions, GraphConfig(collision_radius=radius, surface_edges=True)).graph
+    return build_scene_graph(
+        geometry, positions, quaternions, GraphConfig(collision_radius=radius, surface_edges=True)
+    ).graph
 
 
 @pytest.mark.parametrize("distance", [1e3, 1e4])
@@ -210,7 +228,9 @@ def test_graph_features_do_not_depend_on_where_the_scene_is(distance):
         assert np.array_equal(edges.senders.numpy(), moved.senders.numpy()), name
         assert np.array_equal(edges.receivers.numpy(), moved.receivers.numpy()), name
         tolerance = 2e-6 * max(1.0, float(edges.features.abs().max())) + 1e-15 * distance
-        np.testing.assert_allclose(moved.features.numpy(), edges.features.numpy(), rtol=0, atol=tolerance, err_msg=name)
+        np.testing.assert_allclose(
+            moved.features.numpy(), edges.features.numpy(), rtol=0, atol=tolerance, err_msg=name
+        )
 
 
 @pytest.mark.parametrize("box_size, gap", [(0.02, 0.002), (5.0, 0.05)])
@@ -250,7 +270,9 @@ def test_density_that_is_empty_or_flat_below_the_threshold(value):
     from fignetctl.core.mesh_extraction import extract_object
 
     with pytest.raises(FignetError, match="no density above the threshold"):
-        extract_object(lambda points: np.full(len(points), value), np.array([[0, 0, 0], [1, 1, 1.0]]), _settings())
+        extract_object(
+            lambda points: np.full(len(points), value), np.array([[0, 0, 0], [1, 1, 1.0]]), _settings()
+        )
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
@@ -271,7 +293,9 @@ def test_density_that_is_flat_above_the_threshold_fills_the_box():
     """Uniform solid density: marching cubes caps the box itself; the mesh is the box."""
     from fignetctl.core.mesh_extraction import mesh_from_density
 
-    mesh = mesh_from_density(lambda points: np.full(len(points), 1000.0), np.zeros(3), np.ones(3), _settings())
+    mesh = mesh_from_density(
+        lambda points: np.full(len(points), 1000.0), np.zeros(3), np.ones(3), _settings()
+    )
     assert np.all(np.isfinite(mesh.vertices))
     np.testing.assert_allclose(mesh.bounds, [[0, 0, 0], [1, 1, 1]], atol=1 / 23 + 1e-9)
 
@@ -293,6 +317,11 @@ def test_marching_cubes_with_no_surface():
     from fignetctl.core.mesh_extraction import grid_axes, marching_cubes
 
     axes, _ = grid_axes(np.zeros(3), np.ones(3), 8)
-    for values, threshold in ((np.zeros((8, 8, 8)), 1.0), (np.full((8, 8, 8), 5.0), 5.0), (np.ones((8, 8, 8)), np.nan), (np.ones((8, 8, 8)), 0.0)):
+    for values, threshold in (
+        (np.zeros((8, 8, 8)), 1.0),
+        (np.full((8, 8, 8), 5.0), 5.0),
+        (np.ones((8, 8, 8)), np.nan),
+        (np.ones((8, 8, 8)), 0.0),
+    ):
         with pytest.raises(FignetError):
             marching_cubes(values, axes, threshold)

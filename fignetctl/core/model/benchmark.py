@@ -43,7 +43,14 @@ import numpy as np
 import torch
 
 from fignetctl import __version__
-from fignetctl.core.model.graph import FACE_FACE, MESH_TO_OBJECT, NODE_NODE, OBJECT_TO_MESH, EdgeSet, MultiGraph
+from fignetctl.core.model.graph import (
+    FACE_FACE,
+    MESH_TO_OBJECT,
+    NODE_NODE,
+    OBJECT_TO_MESH,
+    EdgeSet,
+    MultiGraph,
+)
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.scene_graph import build_scene_graph, collision_face_pairs
 from fignetctl.core.stats import median_iqr
@@ -195,6 +202,7 @@ def make_workload(simulator, scene, frame, noise_generator, device) -> Workload:
 
 def copied_to(graph: MultiGraph, device) -> MultiGraph:
     """A copy of the graph on the device, always new memory (as a host-to-GPU copy is)."""
+
     def copy(tensor):
         return tensor.to(device, copy=True)
 
@@ -294,7 +302,8 @@ def profiled_peak_bytes(function, device) -> int:
         synchronizer(device)()
     wanted = device.type.upper()
     events = [
-        event for event in profiler.profiler.kineto_results.events()
+        event
+        for event in profiler.profiler.kineto_results.events()
         if event.name() == "[memory]" and event.device_type().name == wanted
     ]
     return peak_of_running_sum([e.start_ns() for e in events], [e.nbytes() for e in events])
@@ -341,7 +350,12 @@ def measure_pair(workloads: dict, config: BenchmarkConfig) -> dict:
     for label, workload in workloads.items():
         step = peak_memory_mib(lambda: run_network(workload, config.device), workload, config.device)
         train = peak_memory_mib(lambda: run_training_step(workload, config.device), workload, config.device)
-        results[label] = {"edges": edge_counts(workload.graph), "step_memory": step, "train_memory": train, "times_ms": times[label]}
+        results[label] = {
+            "edges": edge_counts(workload.graph),
+            "step_memory": step,
+            "train_memory": train,
+            "times_ms": times[label],
+        }
     return results
 
 
@@ -395,7 +409,9 @@ def pair_workloads(simulators: dict, scenes: dict, scene_index, frame, noise_see
     workloads = {}
     for label, simulator in simulators.items():
         scene = scenes[mesh_settings(simulator.config)][scene_index]
-        workloads[label] = make_workload(simulator, scene, frame, torch.Generator().manual_seed(noise_seed), device)
+        workloads[label] = make_workload(
+            simulator, scene, frame, torch.Generator().manual_seed(noise_seed), device
+        )
         fit_normalizers(workloads[label], device)
     return workloads
 
@@ -405,10 +421,14 @@ def benchmark_file(path, simulators: dict, config: BenchmarkConfig, on_pair=None
     scenes = scenes_by_mesh_settings(path, simulators)
     first = next(iter(simulators.values()))
     rng = np.random.default_rng(config.seed)
-    pairs = sample_frames(scenes[mesh_settings(first.config)], config.samples, rng, first.config.graph.collision_radius)
+    pairs = sample_frames(
+        scenes[mesh_settings(first.config)], config.samples, rng, first.config.graph.collision_radius
+    )
     per_pair = {label: [] for label in simulators}
     for pair_index, (scene_index, frame, _) in enumerate(pairs):
-        workloads = pair_workloads(simulators, scenes, scene_index, frame, config.seed + pair_index, config.device)
+        workloads = pair_workloads(
+            simulators, scenes, scene_index, frame, config.seed + pair_index, config.device
+        )
         for label, result in measure_pair(workloads, config).items():
             per_pair[label].append(result)
         if on_pair is not None:
@@ -425,7 +445,12 @@ def file_result(path, scenes, pairs, simulators, per_pair) -> dict:
         for label, results in per_pair.items()
     }
     samples = [
-        {"trajectory": scenes[i].name, "frame": t, "contact": contact, **{label: per_pair[label][k] for label in per_pair}}
+        {
+            "trajectory": scenes[i].name,
+            "frame": t,
+            "contact": contact,
+            **{label: per_pair[label][k] for label in per_pair},
+        }
         for k, (i, t, contact) in enumerate(pairs)
     ]
     return {
@@ -443,12 +468,18 @@ def run_benchmark(data_paths, simulators: dict, config: BenchmarkConfig, on_pair
     """Data files and {label: simulator} -> the full result (json-ready dict)."""
     simulators = {label: s.to(config.device) for label, s in simulators.items()}
     with torch_threads(config.threads):
-        files = {label: benchmark_file(path, simulators, config, on_pair) for label, path in unique_labels(data_paths).items()}
+        files = {
+            label: benchmark_file(path, simulators, config, on_pair)
+            for label, path in unique_labels(data_paths).items()
+        }
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "fignetctl_version": __version__,
-        "environment": {**environment(config.device), "torch_threads": config.threads or torch.get_num_threads()},
+        "environment": {
+            **environment(config.device),
+            "torch_threads": config.threads or torch.get_num_threads(),
+        },
         "config": dataclasses.asdict(config),
         "method": method_description(config.device),
         "models": {label: model_description(s) for label, s in simulators.items()},
@@ -512,14 +543,24 @@ def method_description(device) -> dict:
 
 def markdown_report(result: dict) -> str:
     """The result as markdown: the main table, edges by type, ratios next to the paper's."""
-    lines = header_lines(result) + [""] + main_table(result) + [""] + edge_table(result) + [""] + ratio_table(result)
+    lines = (
+        header_lines(result)
+        + [""]
+        + main_table(result)
+        + [""]
+        + edge_table(result)
+        + [""]
+        + ratio_table(result)
+    )
     return "\n".join(lines) + "\n"
 
 
 def header_lines(result: dict) -> list[str]:
     """What was measured, on what, and how memory was counted."""
     env, config = result["environment"], result["config"]
-    lines = [f"Device: {env['device']} ({env['device_name']}), {env['torch_threads']} torch thread(s), torch {env['torch']}; {config['repeats']} timed repeats per pair after {config['warmup']} warm-up."]
+    lines = [
+        f"Device: {env['device']} ({env['device_name']}), {env['torch_threads']} torch thread(s), torch {env['torch']}; {config['repeats']} timed repeats per pair after {config['warmup']} warm-up."
+    ]
     for label, model in result["models"].items():
         settings = json.loads(model["simulator_config"])
         network, graph = settings["network"], settings["graph"]
@@ -528,7 +569,9 @@ def header_lines(result: dict) -> list[str]:
             f" collision radius {graph['collision_radius']} m, max faces {settings['max_faces_per_object']}."
         )
     for label, data in result["data"].items():
-        lines.append(f"{label}: {data['pairs']} (trajectory, frame) pairs, {data['pairs_in_contact']} in contact.")
+        lines.append(
+            f"{label}: {data['pairs']} (trajectory, frame) pairs, {data['pairs_in_contact']} in contact."
+        )
     lines.append(f"Memory: {result['method']['memory']}.")
     return [line + "  " for line in lines[:-1]] + lines[-1:]
 
@@ -557,7 +600,10 @@ def main_table(result: dict) -> list[str]:
 
 
 def edge_table(result: dict) -> list[str]:
-    lines = [f"| data | model | {' | '.join(EDGE_TYPES)} | total | nodes |", "| --- | --- |" + " --- |" * (len(EDGE_TYPES) + 2)]
+    lines = [
+        f"| data | model | {' | '.join(EDGE_TYPES)} | total | nodes |",
+        "| --- | --- |" + " --- |" * (len(EDGE_TYPES) + 2),
+    ]
     for data_label, data in result["data"].items():
         for label, m in data["models"].items():
             cells = [_pm(m["edges"][name], 0) for name in (*EDGE_TYPES, "total", "nodes")]
@@ -575,6 +621,9 @@ def ratio_table(result: dict) -> list[str]:
     for data_label, data in result["data"].items():
         r = data["ratios"]
         if r is not None:
-            cells = [r[key] for key in ("edges", "step_memory", "train_memory", "step_time", "network_time", "train_time")]
+            cells = [
+                r[key]
+                for key in ("edges", "step_memory", "train_memory", "step_time", "network_time", "train_time")
+            ]
             lines.append(f"| {data_label} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
     return lines

@@ -75,8 +75,18 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
         simulator = LearnedSimulator(config)
         simulator.load_state_dict(payload["model"])
         simulator.trained_properties = ranges_from_json(payload.get("trained_properties"))
-    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, RecursionError) as error:
-        raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
+    except (
+        KeyError,
+        TypeError,
+        ValueError,
+        RuntimeError,
+        AttributeError,
+        IndexError,
+        RecursionError,
+    ) as error:
+        raise FormatError(
+            f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})"
+        ) from None
     _check_finite_state(simulator, path)
     training_state = payload.get("training_state")
     if with_training_state and training_state is not None and not isinstance(training_state, dict):
@@ -109,7 +119,9 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     payload = read_checkpoint_payload(source)
     state = payload.pop("training_state", None)
     if state:  # an exported file keeps the provenance it has
-        payload["provenance"] = {key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state}
+        payload["provenance"] = {
+            key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state
+        }
     if trained_on is not None:
         if file_sha256(trained_on) != payload.get("provenance", {}).get("data_hash"):
             raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")

@@ -59,7 +59,10 @@ def constant_velocity_baseline(scene, num_steps, gravity, dt):
 
     geometry = scene.geometry
     floor = _floor_height(geometry, scene.positions[1], scene.quaternions[1])
-    positions, quaternions = [scene.positions[0], scene.positions[1]], [scene.quaternions[0], scene.quaternions[1]]
+    positions, quaternions = (
+        [scene.positions[0], scene.positions[1]],
+        [scene.quaternions[0], scene.quaternions[1]],
+    )
     moving = ~geometry.static.copy()
     step_gravity = np.asarray(gravity, np.float64) * dt * dt
     for _ in range(num_steps):
@@ -93,7 +96,9 @@ def horizon_steps(dt, num_frames):
     """{'50_steps': 50, '0.1_seconds': k, ...} for the horizons a trajectory of num_frames
     covers (a time is round(time / dt) steps, at least one)."""
     horizons = {f"{PAPER_STEPS}_steps": PAPER_STEPS}
-    horizons.update({f"{seconds:g}_seconds": max(1, int(round(seconds / dt))) for seconds in SECONDS_HORIZONS})
+    horizons.update(
+        {f"{seconds:g}_seconds": max(1, int(round(seconds / dt))) for seconds in SECONDS_HORIZONS}
+    )
     return {name: steps for name, steps in horizons.items() if 1 + steps < num_frames}
 
 
@@ -144,12 +149,18 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
     shapes = np.asarray(mesh_names)[dynamic]
     records = {}
     for method, (positions, quaternions) in rollouts.items():
-        per_step = {step: errors_at(scene, positions, quaternions, step) for step in range(1, positions.shape[0] - 1)}
+        per_step = {
+            step: errors_at(scene, positions, quaternions, step) for step in range(1, positions.shape[0] - 1)
+        }
         for step, (translation, rotation) in per_step.items():
-            records.setdefault((method, step, "all"), []).append({"translation": translation, "rotation": rotation})
+            records.setdefault((method, step, "all"), []).append(
+                {"translation": translation, "rotation": rotation}
+            )
         for horizon, steps in horizons.items():
             translation, rotation = per_step[steps]  # the rollouts reach the longest horizon
-            records.setdefault((method, horizon, "all"), []).append({"translation": translation, "rotation": rotation})
+            records.setdefault((method, horizon, "all"), []).append(
+                {"translation": translation, "rotation": rotation}
+            )
             for shape in np.unique(shapes):
                 keep = shapes == shape
                 record = {"translation": translation[keep], "rotation": rotation[keep]}
@@ -180,11 +191,23 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded
             on_scene(scene)
     if not all_records:
         return {}
-    metrics = nest_metrics({key: records for key, records in all_records.items() if not isinstance(key[1], int)})
-    return {"metrics": metrics, "curves": error_curves(all_records), "comparison": {
-        baseline: {horizon: compare(all_records[("model", horizon, "all")], all_records[(baseline, horizon, "all")])
-                   for horizon in metrics["model"]}
-        for baseline in metrics if baseline != "model"}}
+    metrics = nest_metrics(
+        {key: records for key, records in all_records.items() if not isinstance(key[1], int)}
+    )
+    return {
+        "metrics": metrics,
+        "curves": error_curves(all_records),
+        "comparison": {
+            baseline: {
+                horizon: compare(
+                    all_records[("model", horizon, "all")], all_records[(baseline, horizon, "all")]
+                )
+                for horizon in metrics["model"]
+            }
+            for baseline in metrics
+            if baseline != "model"
+        },
+    }
 
 
 def nest_metrics(all_records):
@@ -207,8 +230,10 @@ def error_curves(all_records):
         if isinstance(step, int):
             curves.setdefault(method, {})[step] = summarize_errors(records)
     keys = ("translation_rmse_m", "rotation_error_deg", "objects")
-    return {method: {"step": sorted(by_step), **{key: [by_step[k][key] for k in sorted(by_step)] for key in keys}}
-            for method, by_step in curves.items()}
+    return {
+        method: {"step": sorted(by_step), **{key: [by_step[k][key] for k in sorted(by_step)] for key in keys}}
+        for method, by_step in curves.items()
+    }
 
 
 def compare(model_records, baseline_records, resamples=BOOTSTRAP_RESAMPLES, seed=BOOTSTRAP_SEED):
@@ -220,17 +245,28 @@ def compare(model_records, baseline_records, resamples=BOOTSTRAP_RESAMPLES, seed
     translation error than the baseline's."""
     if len(model_records) != len(baseline_records):
         raise ValueError("the model and the baseline were not evaluated on the same trajectories")
-    squared = np.array([[np.sum(m["translation"] ** 2), np.sum(b["translation"] ** 2)] for m, b in zip(model_records, baseline_records)])
-    angles = np.array([[np.sum(m["rotation"]), np.sum(b["rotation"])] for m, b in zip(model_records, baseline_records)])
+    squared = np.array(
+        [
+            [np.sum(m["translation"] ** 2), np.sum(b["translation"] ** 2)]
+            for m, b in zip(model_records, baseline_records)
+        ]
+    )
+    angles = np.array(
+        [[np.sum(m["rotation"]), np.sum(b["rotation"])] for m, b in zip(model_records, baseline_records)]
+    )
     counts = np.array([m["translation"].size for m in model_records], np.float64)
     picks = np.random.default_rng(seed).integers(0, len(counts), size=(resamples, len(counts)))
     ratios = np.sqrt(squared[picks, 0].sum(1) / np.maximum(squared[picks, 1].sum(1), 1e-300))
     differences = (angles[picks, 0].sum(1) - angles[picks, 1].sum(1)) / np.maximum(counts[picks].sum(1), 1)
-    closer = np.concatenate([m["translation"] < b["translation"] for m, b in zip(model_records, baseline_records)])
+    closer = np.concatenate(
+        [m["translation"] < b["translation"] for m, b in zip(model_records, baseline_records)]
+    )
     return {
         "translation_rmse_ratio": float(np.sqrt(squared[:, 0].sum() / max(squared[:, 1].sum(), 1e-300))),
         "translation_rmse_ratio_95": [float(v) for v in np.percentile(ratios, [2.5, 97.5])],
-        "rotation_error_difference_deg": float((angles[:, 0].sum() - angles[:, 1].sum()) / max(counts.sum(), 1)),
+        "rotation_error_difference_deg": float(
+            (angles[:, 0].sum() - angles[:, 1].sum()) / max(counts.sum(), 1)
+        ),
         "rotation_error_difference_deg_95": [float(v) for v in np.percentile(differences, [2.5, 97.5])],
         "objects_closer": float(closer.mean()) if closer.size else None,
         "objects": int(closer.size),

@@ -74,9 +74,7 @@ def check_edge_set_shapes(edge_set: EdgeSet) -> None:
     """Raise ValueError, naming the edge set, when its tensors do not fit together."""
     name = edge_set.name
     if edge_set.features.dim() != 2:
-        raise ValueError(
-            f"edge set {name!r}: features must be (E, F), got {tuple(edge_set.features.shape)}"
-        )
+        raise ValueError(f"edge set {name!r}: features must be (E, F), got {tuple(edge_set.features.shape)}")
     if edge_set.senders.shape != edge_set.receivers.shape:
         raise ValueError(f"edge set {name!r}: senders and receivers differ in shape")
     if edge_set.senders.dtype != torch.long or edge_set.receivers.dtype != torch.long:
@@ -153,9 +151,7 @@ def graph_signature(graph: MultiGraph) -> GraphSignature:
     return GraphSignature(
         node_feature_size=graph.node_features.shape[1],
         edge_feature_sizes={name: es.features.shape[1] for name, es in graph.edge_sets.items()},
-        hyper_edge_set_names=tuple(
-            name for name, es in graph.edge_sets.items() if es.is_hyper_edge_set
-        ),
+        hyper_edge_set_names=tuple(name for name, es in graph.edge_sets.items() if es.is_hyper_edge_set),
     )
 
 
@@ -171,14 +167,10 @@ def batch_graphs(graphs: Sequence[MultiGraph]) -> MultiGraph:
     names = list(graphs[0].edge_sets)
     for graph in graphs[1:]:
         if sorted(graph.edge_sets) != sorted(names):
-            raise ValueError(
-                f"graphs disagree on edge sets: {sorted(names)} vs {sorted(graph.edge_sets)}"
-            )
+            raise ValueError(f"graphs disagree on edge sets: {sorted(names)} vs {sorted(graph.edge_sets)}")
     node_counts = torch.tensor([graph.num_nodes for graph in graphs])
     offsets = (torch.cumsum(node_counts, 0) - node_counts).tolist()
-    edge_sets = {
-        name: batch_edge_sets([g.edge_sets[name] for g in graphs], offsets) for name in names
-    }
+    edge_sets = {name: batch_edge_sets([g.edge_sets[name] for g in graphs], offsets) for name in names}
     node_features = torch.cat([graph.node_features for graph in graphs], dim=0)
     return MultiGraph(node_features, edge_sets)
 

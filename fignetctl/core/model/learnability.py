@@ -34,7 +34,9 @@ def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
         frames = np.arange(1, scene.positions.shape[0] - 1)
         if frames_per_scene is not None and frames_per_scene < len(frames):
             frames = np.sort(rng.choice(frames, frames_per_scene, replace=False))
-        examples += [training_example(simulator.config, scene, int(frame), generator, clean) for frame in frames]
+        examples += [
+            training_example(simulator.config, scene, int(frame), generator, clean) for frame in frames
+        ]
     return examples
 
 
@@ -55,21 +57,44 @@ def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
     prediction, target = torch.cat(predictions).double(), torch.cat(targets).double()
     residual = ((prediction - target) ** 2).sum(0)
     spread = ((target - target.mean(0)) ** 2).sum(0)
-    result = {"all": float(residual.sum() / spread.sum()), "position": float(residual[:3].sum() / spread[:3].sum()),
-              "per_component": (residual / spread.clamp(min=1e-300)).tolist(), "vertices": int(target.shape[0])}
+    result = {
+        "all": float(residual.sum() / spread.sum()),
+        "position": float(residual[:3].sum() / spread[:3].sum()),
+        "per_component": (residual / spread.clamp(min=1e-300)).tolist(),
+        "vertices": int(target.shape[0]),
+    }
     if target.shape[1] == 6:
         result["velocity"] = float(residual[3:].sum() / spread[3:].sum())
     return result
 
 
-def overfit(simulator_config, scenes, steps, batch_size=4, learning_rate=(1e-3, 1e-4), loss="mse", precision="fp32", seed=0):
+def overfit(
+    simulator_config,
+    scenes,
+    steps,
+    batch_size=4,
+    learning_rate=(1e-3, 1e-4),
+    loss="mse",
+    precision="fp32",
+    seed=0,
+):
     """A Trainer that has fitted `scenes` for `steps` without noise (the learnability test)."""
     from fignetctl.core.model.simulator import LearnedSimulator
     from fignetctl.core.model.training import Trainer, TrainingConfig
 
-    config = TrainingConfig(steps=steps, batch_size=batch_size, learning_rate_initial=learning_rate[0], learning_rate_final=learning_rate[1],
-                            noise_translation_std=0.0, noise_rotation_std=0.0, loss=loss, precision=precision,
-                            normalizer_accumulation_steps=min(200, steps), checkpoint_every=10**9, seed=seed)
+    config = TrainingConfig(
+        steps=steps,
+        batch_size=batch_size,
+        learning_rate_initial=learning_rate[0],
+        learning_rate_final=learning_rate[1],
+        noise_translation_std=0.0,
+        noise_rotation_std=0.0,
+        loss=loss,
+        precision=precision,
+        normalizer_accumulation_steps=min(200, steps),
+        checkpoint_every=10**9,
+        seed=seed,
+    )
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         simulator = LearnedSimulator(dataclasses.replace(simulator_config, dt=scenes[0].dt))

@@ -62,9 +62,7 @@ PRESETS = {
 }
 
 
-def build_mlp(
-    input_size: int, hidden_size: int, hidden_layers: int, output_size: int
-) -> nn.Sequential:
+def build_mlp(input_size: int, hidden_size: int, hidden_layers: int, output_size: int) -> nn.Sequential:
     """Linear–ReLU hidden layers, then a linear output layer."""
     layers: list[nn.Module] = []
     layer_input_size = input_size
@@ -89,9 +87,7 @@ class PartwiseLayerNorm(nn.Module):
         return self.layer_norm(chunked).reshape(latents.shape)
 
 
-def build_mlp_with_layer_norm(
-    input_size: int, output_parts: int, config: NetworkConfig
-) -> nn.Sequential:
+def build_mlp_with_layer_norm(input_size: int, output_parts: int, config: NetworkConfig) -> nn.Sequential:
     """An MLP to `output_parts` latents of config.latent_size, each layer-normalised."""
     mlp = build_mlp(
         input_size,
@@ -125,7 +121,10 @@ def edge_update_inputs(
     edge_latents: torch.Tensor, node_latents: torch.Tensor, edge_set: EdgeSet
 ) -> torch.Tensor:
     """[edge latent, sender latent(s), receiver latent(s)]: (E, 3L), or (E, 9L) for face–face."""
-    return torch.cat([edge_latents, gathered(node_latents, edge_set.senders), gathered(node_latents, edge_set.receivers)], dim=-1)
+    return torch.cat(
+        [edge_latents, gathered(node_latents, edge_set.senders), gathered(node_latents, edge_set.receivers)],
+        dim=-1,
+    )
 
 
 def gathered(node_latents: torch.Tensor, nodes: torch.Tensor) -> torch.Tensor:
@@ -146,9 +145,7 @@ class GraphNetBlock(nn.Module):
         self.edge_updates = nn.ModuleDict()
         for name in signature.edge_set_names:
             parts = latent_parts(signature, name)
-            self.edge_updates[name] = build_mlp_with_layer_norm(
-                3 * parts * latent_size, parts, config
-            )
+            self.edge_updates[name] = build_mlp_with_layer_norm(3 * parts * latent_size, parts, config)
         node_input_size = latent_size * (1 + len(signature.edge_set_names))
         self.node_update = build_mlp_with_layer_norm(node_input_size, 1, config)
 
@@ -163,9 +160,7 @@ class GraphNetBlock(nn.Module):
             update = edge_update(edge_update_inputs(edge_latents[name], node_latents, edge_set))
             new_edge_latents[name] = edge_latents[name] + update
             messages = update.reshape(*edge_set.receivers.shape, self.latent_size)
-            summed_messages.append(
-                sum_messages_into_receivers(messages, edge_set.receivers, graph.num_nodes)
-            )
+            summed_messages.append(sum_messages_into_receivers(messages, edge_set.receivers, graph.num_nodes))
         node_update = self.node_update(torch.cat([node_latents, *summed_messages], dim=-1))
         return node_latents + node_update, new_edge_latents
 
@@ -204,8 +199,7 @@ class EncodeProcessDecode(nn.Module):
         check_graph_matches_signature(graph, self.signature)
         node_latents = self.node_encoder(graph.node_features)
         edge_latents = {
-            name: encoder(graph.edge_sets[name].features)
-            for name, encoder in self.edge_encoders.items()
+            name: encoder(graph.edge_sets[name].features) for name, encoder in self.edge_encoders.items()
         }
         for block in self.processor:
             node_latents, edge_latents = block(node_latents, edge_latents, graph)
@@ -221,6 +215,4 @@ def check_graph_matches_signature(graph: MultiGraph, signature: GraphSignature) 
             f" the graph has {list(found.edge_set_names)}"
         )
     if found != signature:
-        raise ValueError(
-            f"graph features {found.as_dict()} differ from the network's {signature.as_dict()}"
-        )
+        raise ValueError(f"graph features {found.as_dict()} differ from the network's {signature.as_dict()}")

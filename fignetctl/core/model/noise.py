@@ -43,9 +43,7 @@ def sample_rigid_pose_noise(
     num_objects = dynamic.shape[0]
     device = generator.device
     translations = torch.randn(num_objects, 3, generator=generator, device=device) * translation_std
-    rotation_vectors = (
-        torch.randn(num_objects, 3, generator=generator, device=device) * rotation_std
-    )
+    rotation_vectors = torch.randn(num_objects, 3, generator=generator, device=device) * rotation_std
     keep = dynamic.to(device=device, dtype=translations.dtype)[:, None]
     return RigidPoseNoise(translations * keep, rotation_vectors * keep)
 
@@ -86,5 +84,7 @@ def apply_rigid_pose_noise_to_poses(positions, quaternions, noise: RigidPoseNois
     """
     from fignetctl.core.transforms import quat_from_rotation_vector, quat_multiply
 
-    turned = quat_multiply(quat_from_rotation_vector(noise.rotation_vectors.double().cpu().numpy()), quaternions)
+    turned = quat_multiply(
+        quat_from_rotation_vector(noise.rotation_vectors.double().cpu().numpy()), quaternions
+    )
     return np.asarray(positions, np.float64) + noise.translations.double().cpu().numpy(), turned

@@ -41,9 +41,7 @@ class Normalizer(nn.Module):
         if accumulate and self.accepts_more_accumulations():
             self.accumulate(features.detach())
         if self.count.item() == 0:
-            raise RuntimeError(
-                "Normalizer has no statistics yet: call it with accumulate=True first"
-            )
+            raise RuntimeError("Normalizer has no statistics yet: call it with accumulate=True first")
         mean, std = self.mean(), self.std()
         return ((features - mean.to(features.dtype)) / std.to(features.dtype)).to(features.dtype)
 
@@ -54,17 +52,13 @@ class Normalizer(nn.Module):
         return normalized_features * std.to(dtype) + mean.to(dtype)
 
     def accepts_more_accumulations(self) -> bool:
-        return (
-            self.max_accumulations is None or self.num_accumulations.item() < self.max_accumulations
-        )
+        return self.max_accumulations is None or self.num_accumulations.item() < self.max_accumulations
 
     @torch.no_grad()
     def accumulate(self, features: torch.Tensor) -> None:
         """Add the rows of features : (..., size) to the running sums."""
         if features.shape[-1] != self.size:
-            raise ValueError(
-                f"Normalizer of size {self.size} got features of width {features.shape[-1]}"
-            )
+            raise ValueError(f"Normalizer of size {self.size} got features of width {features.shape[-1]}")
         rows = features.reshape(-1, self.size).to(torch.float64)
         self.sum += rows.sum(dim=0)
         self.sum_of_squares += (rows * rows).sum(dim=0)

@@ -39,7 +39,9 @@ INSIDE_SLACK = 1e-9
 two faces is caught by one of them."""
 
 
-def push_out_of_static(geometry, positions_now, quaternions_now, next_positions, next_quaternions, tolerance=TOLERANCE):
+def push_out_of_static(
+    geometry, positions_now, quaternions_now, next_positions, next_quaternions, tolerance=TOLERANCE
+):
     """Predicted poses at t+1 -> the same with each dynamic object translated out of the static
     meshes its vertices passed into during the step (module docstring).
 

@@ -49,7 +49,10 @@ def property_ranges(properties_and_static, largest_sides=None) -> dict:
         values = np.concatenate(rows[is_static]) if rows[is_static] else np.empty((0, 3))
         if len(values):
             names = NAMES[1:] if is_static else NAMES  # a static object's mass is always 0
-            ranges[kind] = {name: [float(values[:, NAMES.index(name)].min()), float(values[:, NAMES.index(name)].max())] for name in names}
+            ranges[kind] = {
+                name: [float(values[:, NAMES.index(name)].min()), float(values[:, NAMES.index(name)].max())]
+                for name in names
+            }
             materials = np.unique(values[:, 1:].astype(np.float32), axis=0)
             if len(materials) <= MAX_MATERIALS:
                 ranges[kind]["materials"] = [[round(float(f), 6), round(float(r), 6)] for f, r in materials]
@@ -63,10 +66,14 @@ def trajectory_largest_sides(data, key) -> np.ndarray:
     """(D,) the largest side (m) of each moving object's scaled mesh in trajectory `key` of a
     TrajectoryFile (its bounding box in the object frame)."""
     trajectory = data.trajectories[key]
-    return np.asarray([
-        float(np.ptp(np.asarray(data.meshes[name].vertices, np.float64), axis=0).max() * scale)
-        for name, scale, static in zip(trajectory.mesh_names, trajectory.scales, trajectory.static) if not static
-    ], np.float64)
+    return np.asarray(
+        [
+            float(np.ptp(np.asarray(data.meshes[name].vertices, np.float64), axis=0).max() * scale)
+            for name, scale, static in zip(trajectory.mesh_names, trajectory.scales, trajectory.static)
+            if not static
+        ],
+        np.float64,
+    )
 
 
 def largest_sides(geometry) -> np.ndarray:
@@ -104,9 +111,16 @@ def outside_ranges(ranges, names, static, properties) -> list[str]:
             slack = RELATIVE_SLACK * max(abs(low), abs(high), 1e-12)
             if not low - slack <= value <= high + slack:
                 span = f"{low:g}" if low == high else f"{low:g}-{high:g}"
-                found.append(f"{kind} object {name!r} has {property_name} {value:g}, outside the {span} the model was trained on")
-        if materials and not (np.abs(np.asarray(materials) - values[1:]).max(axis=1) <= MATERIAL_TOLERANCE).any():
+                found.append(
+                    f"{kind} object {name!r} has {property_name} {value:g}, outside the {span} the model was trained on"
+                )
+        if (
+            materials
+            and not (np.abs(np.asarray(materials) - values[1:]).max(axis=1) <= MATERIAL_TOLERANCE).any()
+        ):
             seen = ", ".join(f"({f:g}, {r:g})" for f, r in materials)
-            found.append(f"{kind} object {name!r} has friction {values[1]:g} and restitution {values[2]:g}, "
-                         f"not a material the model was trained on (friction, restitution: {seen})")
+            found.append(
+                f"{kind} object {name!r} has friction {values[1]:g} and restitution {values[2]:g}, "
+                f"not a material the model was trained on (friction, restitution: {seen})"
+            )
     return found

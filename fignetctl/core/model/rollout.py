@@ -66,9 +66,15 @@ class Sleepers:
     def __init__(self, geometry, settings: SleepSettings, collision_radius: float):
         self.geometry, self.settings, self.collision_radius = geometry, settings, collision_radius
         rest = geometry.rest_vertices
-        self.radius = np.array([np.linalg.norm(rest[geometry.vertex_object == o], axis=1).max(initial=0.0)
-                                for o in range(len(geometry.static))])
-        self.threshold = settings.froude * np.sqrt(settings.gravity * 2.0 * self.radius) * settings.dt  # per frame
+        self.radius = np.array(
+            [
+                np.linalg.norm(rest[geometry.vertex_object == o], axis=1).max(initial=0.0)
+                for o in range(len(geometry.static))
+            ]
+        )
+        self.threshold = (
+            settings.froude * np.sqrt(settings.gravity * 2.0 * self.radius) * settings.dt
+        )  # per frame
         self.still = np.zeros(len(geometry.static), int)
         self.asleep = np.zeros(len(geometry.static), bool)
         self._geometries = {}
@@ -78,14 +84,23 @@ class Sleepers:
         approaches (an awake dynamic object, or a static one in `moving_static`, bool (O,))."""
         dynamic = ~self.geometry.static
         turn = np.radians(quat_angle_deg(quaternions, previous_quaternions))
-        fastest = np.linalg.norm(positions - previous_positions, axis=1) + turn * self.radius  # bound on any point's step
+        fastest = (
+            np.linalg.norm(positions - previous_positions, axis=1) + turn * self.radius
+        )  # bound on any point's step
         self.still = np.where(dynamic & (fastest < self.threshold), self.still + 1, 0)
         self.asleep = dynamic & (self.still >= self.settings.frames)
         while True:  # an object near an awake one is awake, and so on along chains of neighbours
             awake = np.flatnonzero((dynamic & ~self.asleep) | moving_static)
-            woken = [o for o in np.flatnonzero(self.asleep)
-                     if np.any(np.linalg.norm(positions[awake] - positions[o], axis=1) - self.radius[awake] - self.radius[o]
-                               < self.collision_radius)]
+            woken = [
+                o
+                for o in np.flatnonzero(self.asleep)
+                if np.any(
+                    np.linalg.norm(positions[awake] - positions[o], axis=1)
+                    - self.radius[awake]
+                    - self.radius[o]
+                    < self.collision_radius
+                )
+            ]
             if not woken:
                 break
             self.asleep[woken] = False  # its still count goes on: it sleeps with its neighbours
@@ -99,7 +114,9 @@ class Sleepers:
             return self.geometry
         key = tuple(np.flatnonzero(self.asleep))
         if key not in self._geometries:
-            self._geometries[key] = dataclasses.replace(self.geometry, static=self.geometry.static | self.asleep)
+            self._geometries[key] = dataclasses.replace(
+                self.geometry, static=self.geometry.static | self.asleep
+            )
         return self._geometries[key]
 
 
@@ -126,8 +143,15 @@ def guards_for(dt, gravity, sleep=False, free_flight=False, keep_out=False) -> G
     return Guards(settings, acceleration, bool(keep_out))
 
 
-def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE, guards: Guards = Guards(),
-            with_velocities=False):
+def rollout(
+    simulator,
+    scene,
+    num_steps,
+    on_step=None,
+    max_distance=MAX_DISTANCE,
+    guards: Guards = Guards(),
+    with_velocities=False,
+):
     """Predict `num_steps` frames after frames 0 and 1 of `scene`, with the `guards`.
 
     with_velocities : also return the velocities a velocity-state model carries
@@ -141,15 +165,23 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
     velocities = [scene.velocities[0], scene.velocities[1]] if carries else None
     angular = [scene.angular_velocities[0], scene.angular_velocities[1]] if carries else None
     free_flight = None if guards.free_flight is None else np.asarray(guards.free_flight, np.float64)
-    sleepers = None if guards.sleep is None else Sleepers(scene.geometry, guards.sleep, simulator.config.graph.collision_radius)
+    sleepers = (
+        None
+        if guards.sleep is None
+        else Sleepers(scene.geometry, guards.sleep, simulator.config.graph.collision_radius)
+    )
     for step in range(num_steps):
         next_static = given_static_pose(scene, step + 2)
         if sleepers is not None:
-            moving_static = scene.geometry.static & (np.any(next_static[0] != positions[-1], axis=1)
-                                                     | np.any(next_static[1] != quaternions[-1], axis=1))
+            moving_static = scene.geometry.static & (
+                np.any(next_static[0] != positions[-1], axis=1)
+                | np.any(next_static[1] != quaternions[-1], axis=1)
+            )
             sleepers.update(positions[-2], quaternions[-2], positions[-1], quaternions[-1], moving_static)
-            next_static = (np.where(sleepers.asleep[:, None], positions[-1], next_static[0]),
-                           np.where(sleepers.asleep[:, None], quaternions[-1], next_static[1]))
+            next_static = (
+                np.where(sleepers.asleep[:, None], positions[-1], next_static[0]),
+                np.where(sleepers.asleep[:, None], quaternions[-1], next_static[1]),
+            )
         if sleepers is not None and sleepers.all_asleep():
             new_position, new_quaternion = next_static
             new_velocity = new_angular = np.zeros_like(new_position) if carries else None
@@ -159,10 +191,13 @@ def rollout(simulator, scene, num_steps, on_step=None, max_distance=MAX_DISTANCE
             history_quaternions = np.stack([quaternions[-2], quaternions[-1], next_static[1]])
             state = (velocities[-1], angular[-1]) if carries else None
             new_position, new_quaternion, new_velocity, new_angular = simulator.predict(
-                geometry, history_positions, history_quaternions, free_flight=free_flight, velocities=state)
+                geometry, history_positions, history_quaternions, free_flight=free_flight, velocities=state
+            )
             if guards.keep_out:
                 predicted = new_position
-                new_position, _ = push_out_of_static(geometry, positions[-1], quaternions[-1], new_position, new_quaternion)
+                new_position, _ = push_out_of_static(
+                    geometry, positions[-1], quaternions[-1], new_position, new_quaternion
+                )
                 if carries:
                     new_velocity = without_velocity_into(new_velocity, new_position - predicted)
         check_step(step, new_position, new_quaternion, positions, quaternions, max_distance)

@@ -24,7 +24,9 @@ def load_model(path=None, device="cpu"):
     if path is None or path in BUNDLED:
         path = bundled_model_path(path or DEFAULT_BUNDLED)
         if not path.is_file():
-            raise FignetError(f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)")
+            raise FignetError(
+                f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)"
+            )
     return load_checkpoint(path, device=device)
 
 
@@ -42,17 +44,29 @@ def simulation_time_step(simulator, data, key, where) -> float:
         return data.dt if trained is None else trained
     trajectory = data.trajectories[key]
     static = np.asarray(trajectory.static, bool)
-    still = np.allclose(trajectory.positions[:, static], trajectory.positions[:1, static]) and \
-        np.allclose(trajectory.quaternions[:, static], trajectory.quaternions[:1, static])
+    still = np.allclose(trajectory.positions[:, static], trajectory.positions[:1, static]) and np.allclose(
+        trajectory.quaternions[:, static], trajectory.quaternions[:1, static]
+    )
     if simulator.config.uses_velocities and still:
         return trained
-    raise FignetError(f"{where}: its frames are {data.dt:.6g} s apart, the model steps {trained:.6g} s "
-                      f"({'static objects move over the given frames' if simulator.config.uses_velocities else 'its two input frames must be one step apart'}); "
-                      f"give the scene at dt = {trained:.6g} s")
+    raise FignetError(
+        f"{where}: its frames are {data.dt:.6g} s apart, the model steps {trained:.6g} s "
+        f"({'static objects move over the given frames' if simulator.config.uses_velocities else 'its two input frames must be one step apart'}); "
+        f"give the scene at dt = {trained:.6g} s"
+    )
 
 
-def rollout_file(simulator, scene_path, trajectory_id, num_steps, on_step=None, sim_scale=1.0, sleep=False,
-                 free_flight=False, keep_out=False) -> TrajectoryFile:
+def rollout_file(
+    simulator,
+    scene_path,
+    trajectory_id,
+    num_steps,
+    on_step=None,
+    sim_scale=1.0,
+    sleep=False,
+    free_flight=False,
+    keep_out=False,
+) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
 
     sim_scale : simulate the scene scaled by this factor (or "auto": similarity.auto_scale with
@@ -99,13 +113,17 @@ def warn_untrained_properties(simulator, trajectories) -> None:
     never saw."""
     ranges, found = getattr(simulator, "trained_properties", None), {}
     for trajectory in trajectories:
-        for sentence in outside_ranges(ranges, trajectory.mesh_names, trajectory.static, trajectory.properties):
+        for sentence in outside_ranges(
+            ranges, trajectory.mesh_names, trajectory.static, trajectory.properties
+        ):
             found.setdefault(sentence)
     for sentence in found:
         log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)
 
 
-def rollout_result(data, key, positions, quaternions, velocities, angular_velocities, simulator, dt=None, sim_scale=1.0) -> TrajectoryFile:
+def rollout_result(
+    data, key, positions, quaternions, velocities, angular_velocities, simulator, dt=None, sim_scale=1.0
+) -> TrajectoryFile:
     """A trajectory file of the rollout: the scene's meshes and objects, the new frames (with
     velocities when given, (T, O, 3) m/s and rad/s)."""
     trajectory = dataclasses.replace(
@@ -118,12 +136,25 @@ def rollout_result(data, key, positions, quaternions, velocities, angular_veloci
     )
     used = set(trajectory.mesh_names)
     meshes = {name: mesh for name, mesh in data.meshes.items() if name in used}
-    attrs = {"source": "fignetctl rollout", "model_config": simulator.config.to_json(), "sim_scale": float(sim_scale)}
+    attrs = {
+        "source": "fignetctl rollout",
+        "model_config": simulator.config.to_json(),
+        "sim_scale": float(sim_scale),
+    }
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sleep=False, free_flight=False, keep_out=False,
-                  with_guards=False, ceilings=False) -> dict:
+def evaluate_file(
+    simulator,
+    data_path,
+    max_trajectories=None,
+    on_scene=None,
+    sleep=False,
+    free_flight=False,
+    keep_out=False,
+    with_guards=False,
+    ceilings=False,
+) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file;
     `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping);
     `ceilings` also evaluates PyBullet restarted every frame from each state (core/ceilings.py;
@@ -133,11 +164,15 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
     data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
     if simulator.config.dt is not None and not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
-        raise FignetError(f"{data_path}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
-                          "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step")
+        raise FignetError(
+            f"{data_path}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
+            "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step"
+        )
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
     cache = {}
-    scenes = [scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys]
+    scenes = [
+        scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys
+    ]
     guards = guards_for(data.dt, data.gravity, sleep, free_flight, keep_out)
     guarded = guards_for(data.dt, data.gravity, True, True, True) if with_guards else None
     with contextlib.ExitStack() as stack:
@@ -145,8 +180,16 @@ def evaluate_file(simulator, data_path, max_trajectories=None, on_scene=None, sl
         results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded, references)
     if not results:
         raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
-    return {"data": str(data_path), "dt": data.dt, "trajectories": len(scenes), "sleep": bool(sleep),
-            "free_flight": bool(free_flight), "keep_out": bool(keep_out), "ceilings": bool(ceilings), **results}
+    return {
+        "data": str(data_path),
+        "dt": data.dt,
+        "trajectories": len(scenes),
+        "sleep": bool(sleep),
+        "free_flight": bool(free_flight),
+        "keep_out": bool(keep_out),
+        "ceilings": bool(ceilings),
+        **results,
+    }
 
 
 def physics_ceilings(data, stack: contextlib.ExitStack) -> dict:
@@ -157,8 +200,10 @@ def physics_ceilings(data, stack: contextlib.ExitStack) -> dict:
 
     physics = stack.enter_context(RestartedPyBullet(data))
     states = ["velocity"] if any(t.has_velocities for t in data.trajectories.values()) else []
-    return {f"ceiling_{state.replace('-', '_')}": functools.partial(_ceiling_rollout, physics, state)
-            for state in states + ["finite-difference"]}
+    return {
+        f"ceiling_{state.replace('-', '_')}": functools.partial(_ceiling_rollout, physics, state)
+        for state in states + ["finite-difference"]
+    }
 
 
 def _ceiling_rollout(physics, state, scene, num_steps):

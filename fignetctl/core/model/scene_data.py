@@ -48,7 +48,9 @@ class Scene:
     def __post_init__(self) -> None:
         self.velocities_recorded = self.velocities is not None
         if not self.velocities_recorded:
-            self.velocities, self.angular_velocities = estimated_velocities(self.positions, self.quaternions, self.dt)
+            self.velocities, self.angular_velocities = estimated_velocities(
+                self.positions, self.quaternions, self.dt
+            )
 
 
 def decimated_mesh(vertices, faces, max_faces):
@@ -75,7 +77,9 @@ def subdivided_mesh(vertices, faces, max_edge):
     `max_edge`; the surface is unchanged."""
     from trimesh.remesh import subdivide_to_size
 
-    vertices, faces = subdivide_to_size(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), max_edge, max_iter=64)
+    vertices, faces = subdivide_to_size(
+        np.asarray(vertices, np.float64), np.asarray(faces, np.int64), max_edge, max_iter=64
+    )
     return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
 
 
@@ -88,7 +92,9 @@ def prepared_mesh(vertices, faces, static, scale, config):
     return vertices, faces
 
 
-def scene_from_trajectory(data: TrajectoryFile, trajectory_id, config, mesh_cache=None, static_reach=None) -> Scene:
+def scene_from_trajectory(
+    data: TrajectoryFile, trajectory_id, config, mesh_cache=None, static_reach=None
+) -> Scene:
     """The Scene of one trajectory of a file, its meshes prepared for a SimulatorConfig.
 
     mesh_cache : dict filled and reused across calls (prepared meshes by name)
@@ -111,7 +117,10 @@ def scene_from_trajectory(data: TrajectoryFile, trajectory_id, config, mesh_cach
     geometry = scene_geometry(meshes, trajectory.scales, static, trajectory.properties)
     velocities = [None, None]
     if trajectory.has_velocities:
-        velocities = [np.asarray(trajectory.velocities, np.float64), np.asarray(trajectory.angular_velocities, np.float64)]
+        velocities = [
+            np.asarray(trajectory.velocities, np.float64),
+            np.asarray(trajectory.angular_velocities, np.float64),
+        ]
     return Scene(str(trajectory_id), geometry, positions, quaternions, float(data.dt), *velocities)
 
 
@@ -123,16 +132,23 @@ def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
     dynamic = np.flatnonzero(~static)
     if len(dynamic) == 0:
         return meshes
-    sizes = np.array([np.linalg.norm(np.asarray(meshes[o][0]), axis=1).max() * float(scales[o]) for o in dynamic])
+    sizes = np.array(
+        [np.linalg.norm(np.asarray(meshes[o][0]), axis=1).max() * float(scales[o]) for o in dynamic]
+    )
     centres = positions[:, dynamic]
     lower = (centres - sizes[None, :, None]).reshape(-1, 3).min(axis=0) - reach
     upper = (centres + sizes[None, :, None]).reshape(-1, 3).max(axis=0) + reach
     cropped = list(meshes)
     for o in np.flatnonzero(static):
-        if not (np.allclose(positions[:, o], positions[0, o]) and np.allclose(quaternions[:, o], quaternions[0, o])):
+        if not (
+            np.allclose(positions[:, o], positions[0, o])
+            and np.allclose(quaternions[:, o], quaternions[0, o])
+        ):
             continue  # a moving static object keeps its whole mesh
         vertices, faces = meshes[o]
-        world = np.asarray(vertices) * float(scales[o]) @ quat_to_matrix(quaternions[0, o]).T + positions[0, o]
+        world = (
+            np.asarray(vertices) * float(scales[o]) @ quat_to_matrix(quaternions[0, o]).T + positions[0, o]
+        )
         triangles = world[faces]
         keep = ((triangles.max(axis=1) >= lower) & (triangles.min(axis=1) <= upper)).all(axis=1)
         if keep.all():

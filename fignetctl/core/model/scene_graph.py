@@ -210,7 +210,9 @@ class SceneGeometry:
             for o, vertices in enumerate(self.object_vertices):
                 kept = self.static_face_index.kept(o, _pose_key(p, q, o)) if self.static[o] else None
                 rows = _as_slice(vertices)
-                history[frame, rows] = kept.vertices if kept is not None else self.world_vertices(p, q, vertices)
+                history[frame, rows] = (
+                    kept.vertices if kept is not None else self.world_vertices(p, q, vertices)
+                )
         return history
 
 
@@ -330,17 +332,32 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
         [geometry.world_vertices(p, q, geometry.dynamic_vertices) for p, q in zip(positions, quaternions)]
     )
     if velocities is not None:
-        positions, dynamic_history = _history_from_velocities(geometry, positions, dynamic_history, velocities)
-    margins = speculative_margins(geometry, dynamic_history, positions, quaternions, config.collision_radius) if config.speculative else None
+        positions, dynamic_history = _history_from_velocities(
+            geometry, positions, dynamic_history, velocities
+        )
+    margins = (
+        speculative_margins(geometry, dynamic_history, positions, quaternions, config.collision_radius)
+        if config.speculative
+        else None
+    )
     pair_i, pair_j = collision_face_pairs_from_poses(
         geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius, margins
     )
     node_vertex, node_object = select_nodes(geometry, pair_i, pair_j)
-    node_history = node_position_history(geometry, node_vertex, node_object, dynamic_history, positions, quaternions)
+    node_history = node_position_history(
+        geometry, node_vertex, node_object, dynamic_history, positions, quaternions
+    )
     vertex_nodes = VertexNodes(node_vertex)
     edge_sets = object_mesh_edge_sets(geometry, node_vertex, node_object, node_history[1])
-    edge_sets[FACE_FACE] = face_face_edge_set(geometry, node_history[1], pair_i, pair_j, vertex_nodes, config.max_vertex_offset,
-                                              config.static_receivers)
+    edge_sets[FACE_FACE] = face_face_edge_set(
+        geometry,
+        node_history[1],
+        pair_i,
+        pair_j,
+        vertex_nodes,
+        config.max_vertex_offset,
+        config.static_receivers,
+    )
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
@@ -348,7 +365,9 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
     num_dynamic = len(geometry.dynamic_vertices)
     touching = np.zeros(len(geometry.static), bool)
     touching[geometry.face_object[np.concatenate([pair_i, pair_j])]] = True
-    return SceneGraph(graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions), touching)
+    return SceneGraph(
+        graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions), touching
+    )
 
 
 def _history_from_velocities(geometry, positions, dynamic_history, velocities):
@@ -359,7 +378,8 @@ def _history_from_velocities(geometry, positions, dynamic_history, velocities):
     positions[0, dynamic] = positions[1, dynamic] - linear[dynamic]
     dynamic_history = dynamic_history.copy()
     dynamic_history[0] = dynamic_history[1] - rigid_point_velocities(
-        dynamic_history[1], geometry.vertex_object[geometry.dynamic_vertices], positions[1], linear, angular)
+        dynamic_history[1], geometry.vertex_object[geometry.dynamic_vertices], positions[1], linear, angular
+    )
     return positions, dynamic_history
 
 
@@ -394,12 +414,16 @@ def speculative_margins(geometry, dynamic_history, positions, quaternions, cap):
     for o in np.flatnonzero(geometry.static):
         if _pose_key(positions[1], quaternions[1], o) != _pose_key(positions[2], quaternions[2], o):
             vertices = geometry.object_vertices[o]
-            moved = geometry.world_vertices(positions[2], quaternions[2], vertices) - geometry.world_vertices(positions[1], quaternions[1], vertices)
+            moved = geometry.world_vertices(positions[2], quaternions[2], vertices) - geometry.world_vertices(
+                positions[1], quaternions[1], vertices
+            )
             margins[o] = np.linalg.norm(moved, axis=1).max(initial=0.0)
     return np.minimum(margins, cap)
 
 
-def collision_face_pairs_from_poses(geometry, dynamic_vertices_now, positions_now, quaternions_now, radius, margins=None):
+def collision_face_pairs_from_poses(
+    geometry, dynamic_vertices_now, positions_now, quaternions_now, radius, margins=None
+):
     """The pairs of `collision_face_pairs`, with static objects' faces taken from the kept
     FaceGroups of geometry.static_face_group: no work per static face that is not near a
     moving one (after the first call at a pose).
@@ -443,7 +467,9 @@ def node_position_history(geometry, node_vertex, node_object, dynamic_history, p
     history = np.asarray(positions, np.float64)[:, node_object]
     history[:, :num_dynamic] = dynamic_history
     for frame, (p, q) in enumerate(zip(positions, quaternions)):
-        history[frame, num_dynamic : num_dynamic + len(static_vertices)] = geometry.world_vertices(p, q, static_vertices)
+        history[frame, num_dynamic : num_dynamic + len(static_vertices)] = geometry.world_vertices(
+            p, q, static_vertices
+        )
     return history
 
 
@@ -461,8 +487,14 @@ class VertexNodes:
 
     def contains(self, vertices):
         """(...) bool: True for vertices that are mesh nodes."""
-        at = np.minimum(np.searchsorted(self.sorted_vertices, vertices), max(len(self.sorted_vertices) - 1, 0))
-        return self.sorted_vertices[at] == vertices if len(self.sorted_vertices) else np.zeros(np.shape(vertices), bool)
+        at = np.minimum(
+            np.searchsorted(self.sorted_vertices, vertices), max(len(self.sorted_vertices) - 1, 0)
+        )
+        return (
+            self.sorted_vertices[at] == vertices
+            if len(self.sorted_vertices)
+            else np.zeros(np.shape(vertices), bool)
+        )
 
     def nodes(self, vertices):
         """(...) int64: the node of each vertex (all must be mesh nodes)."""
@@ -538,7 +570,9 @@ def surface_edges_between(geometry, vertex_nodes):
     return np.sort(candidates[both])
 
 
-def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None, static_receivers=True):
+def face_face_edge_set(
+    geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None, static_receivers=True
+):
     """Collision hyper-edges for the face pairs, in both directions (into dynamic faces only
     unless `static_receivers`)."""
     sender_faces = np.concatenate([pair_i, pair_j])
@@ -548,7 +582,9 @@ def face_face_edge_set(geometry, node_now, pair_i, pair_j, vertex_nodes, max_ver
         sender_faces, receiver_faces = sender_faces[into_dynamic], receiver_faces[into_dynamic]
     sender_nodes = vertex_nodes.nodes(geometry.faces[sender_faces])
     receiver_nodes = vertex_nodes.nodes(geometry.faces[receiver_faces])
-    features, sender_order, receiver_order = face_face_features(node_now[sender_nodes], node_now[receiver_nodes], max_vertex_offset)
+    features, sender_order, receiver_order = face_face_features(
+        node_now[sender_nodes], node_now[receiver_nodes], max_vertex_offset
+    )
     senders = np.take_along_axis(sender_nodes, sender_order, axis=1)
     receivers = np.take_along_axis(receiver_nodes, receiver_order, axis=1)
     return _edge_set(FACE_FACE, features, senders, receivers)
@@ -563,8 +599,12 @@ def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=N
     sender_point, receiver_point, distance = closest_points_triangles(sender_triangles, receiver_triangles)
     sender_order = canonical_vertex_order(sender_triangles, sender_point)
     receiver_order = canonical_vertex_order(receiver_triangles, receiver_point)
-    sender_relative = _clamped(_ordered(sender_triangles, sender_order) - sender_point[:, None], max_vertex_offset)
-    receiver_relative = _clamped(_ordered(receiver_triangles, receiver_order) - receiver_point[:, None], max_vertex_offset)
+    sender_relative = _clamped(
+        _ordered(sender_triangles, sender_order) - sender_point[:, None], max_vertex_offset
+    )
+    receiver_relative = _clamped(
+        _ordered(receiver_triangles, receiver_order) - receiver_point[:, None], max_vertex_offset
+    )
     columns = [
         receiver_point - sender_point,
         distance[:, None],

@@ -23,7 +23,13 @@ import math
 import numpy as np
 
 from fignetctl.core.model.properties import trajectory_largest_sides
-from fignetctl.core.transforms import quat_angle_deg, quat_conjugate, quat_from_axis_angle, quat_multiply, quat_normalize
+from fignetctl.core.transforms import (
+    quat_angle_deg,
+    quat_conjugate,
+    quat_from_axis_angle,
+    quat_multiply,
+    quat_normalize,
+)
 from fignetctl.errors import FignetError
 
 TRAINING_OBJECT_SIDE = 2.1
@@ -47,7 +53,9 @@ def auto_scale(data, key, trained_properties=None) -> float:
     models' (TRAINING_SIDE_RANGE, TRAINING_OBJECT_SIDE)."""
     side = largest_dynamic_side(data, key)
     known = (trained_properties or {}).get("dynamic", {}).get("largest_side")
-    low, median, high = known if known else (TRAINING_SIDE_RANGE[0], TRAINING_OBJECT_SIDE, TRAINING_SIDE_RANGE[1])
+    low, median, high = (
+        known if known else (TRAINING_SIDE_RANGE[0], TRAINING_OBJECT_SIDE, TRAINING_SIDE_RANGE[1])
+    )
     return 1.0 if low <= side <= high else median / side
 
 
@@ -60,7 +68,9 @@ def retimed_history(trajectory, dt: float, new_dt: float, gravity):
     quaternions = quat_normalize(trajectory.quaternions[:2])
     dynamic = ~np.asarray(trajectory.static, bool)
     gravity = np.asarray(gravity, np.float64)
-    velocity = (positions[1, dynamic] - positions[0, dynamic]) / dt + 0.5 * gravity * dt  # the parabola's, at frame t
+    velocity = (
+        positions[1, dynamic] - positions[0, dynamic]
+    ) / dt + 0.5 * gravity * dt  # the parabola's, at frame t
     positions[0, dynamic] = positions[1, dynamic] - velocity * new_dt + 0.5 * gravity * new_dt**2
     fraction = new_dt / dt
     # world-frame rotation of the step: q_t = d ⊗ q_{t−1}; keep q_t, shrink d's angle
@@ -103,7 +113,12 @@ def scaled_scene(data, key, scale: float):
         scales=np.asarray(trajectory.scales, np.float64) * scale,
         extras={},
     )
-    return dataclasses.replace(data, trajectories={key: scaled}), (positions, quaternions, velocities, angular)
+    return dataclasses.replace(data, trajectories={key: scaled}), (
+        positions,
+        quaternions,
+        velocities,
+        angular,
+    )
 
 
 def unscaled_frames(frames, history, scale: float):
@@ -116,9 +131,15 @@ def unscaled_frames(frames, history, scale: float):
     """
     positions, quaternions, velocities, angular = frames
     root = math.sqrt(scale)
-    mapped = [np.concatenate([history[0], positions[2:] / scale]), np.concatenate([history[1], quaternions[2:]])]
+    mapped = [
+        np.concatenate([history[0], positions[2:] / scale]),
+        np.concatenate([history[1], quaternions[2:]]),
+    ]
     for k, (values, factor) in enumerate(((velocities, 1 / root), (angular, root)), start=2):
         if values is not None:
-            values = np.concatenate([values[:2] if history[k] is None else history[k] / factor, values[2:]]) * factor
+            values = (
+                np.concatenate([values[:2] if history[k] is None else history[k] / factor, values[2:]])
+                * factor
+            )
         mapped.append(values)
     return mapped

@@ -94,8 +94,10 @@ class SimulatorConfig:
         if self.state not in STATES:
             raise ValueError(f"state must be one of {STATES}, not {self.state!r}")
         if self.network.output_size != output_size_for(self.state):
-            raise ValueError(f"a {self.state!r} model decodes {output_size_for(self.state)} numbers per node, "
-                             f"the network {self.network.output_size}")
+            raise ValueError(
+                f"a {self.state!r} model decodes {output_size_for(self.state)} numbers per node, "
+                f"the network {self.network.output_size}"
+            )
 
     @property
     def uses_velocities(self) -> bool:
@@ -107,7 +109,11 @@ class SimulatorConfig:
     @classmethod
     def from_json(cls, text: str) -> "SimulatorConfig":
         values = json.loads(text)
-        graph = {"max_vertex_offset": None, "static_receivers": True, **values["graph"]}  # absent: a model file older than the field
+        graph = {
+            "max_vertex_offset": None,
+            "static_receivers": True,
+            **values["graph"],
+        }  # absent: a model file older than the field
         gravity = values.get("gravity")
         return cls(
             network=NetworkConfig(**values["network"]),
@@ -135,7 +141,10 @@ class LearnedSimulator(nn.Module):
         self.network = EncodeProcessDecode(config.network, signature)
         self.node_normalizer = Normalizer(NODE_FEATURE_SIZE, std_epsilon=STD_EPSILON)
         self.edge_normalizers = nn.ModuleDict(
-            {name: Normalizer(size, std_epsilon=STD_EPSILON) for name, size in signature.edge_feature_sizes.items()}
+            {
+                name: Normalizer(size, std_epsilon=STD_EPSILON)
+                for name, size in signature.edge_feature_sizes.items()
+            }
         )
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
         self.trained_properties = None  # ranges of the training data's properties (properties.py)
@@ -161,7 +170,9 @@ class LearnedSimulator(nn.Module):
         """Raw graph -> (N, 3) normalised per-node accelerations."""
         return self.network(self.preprocess(graph, accumulate))
 
-    def inverse_postprocess(self, next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, accumulate=False):
+    def inverse_postprocess(
+        self, next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, accumulate=False
+    ):
         """What the network must output to reach x_{t+1} (and u_{t+1} for a velocity state) from
         the history: normalised `acceleration_targets`, a (n, output_size) float32 tensor."""
         targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
@@ -210,7 +221,9 @@ class LearnedSimulator(nn.Module):
         next linear and angular velocities (O, 3) in m/s and rad/s (None, None otherwise), all
         float64, with static objects' poses taken from frame t+1.
         """
-        step_velocities = self.step_velocities(positions, quaternions, velocities) if self.config.uses_velocities else None
+        step_velocities = (
+            self.step_velocities(positions, quaternions, velocities) if self.config.uses_velocities else None
+        )
         scene_graph = build_scene_graph(geometry, positions, quaternions, self.config.graph, step_velocities)
         flying = np.zeros(geometry.num_objects, bool)
         if free_flight is not None:
@@ -232,15 +245,25 @@ class LearnedSimulator(nn.Module):
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
         previous, now = scene_graph.dynamic_vertex_positions[:2]
         next_vertices, next_vertex_velocities = self.postprocess(normalized, previous, now)
-        positions, quaternions = rigid_poses_from_vertices(geometry, next_vertices, static_positions, static_quaternions)
+        positions, quaternions = rigid_poses_from_vertices(
+            geometry, next_vertices, static_positions, static_quaternions
+        )
         if not self.config.uses_velocities:
             return [positions, quaternions, None, None]
-        return [positions, quaternions, *rigid_velocities_from_vertices(geometry, next_vertices, next_vertex_velocities, positions)]
+        return [
+            positions,
+            quaternions,
+            *rigid_velocities_from_vertices(geometry, next_vertices, next_vertex_velocities, positions),
+        ]
 
     def _standing_still(self, positions, quaternions):
         """The same list as `_network_prediction` for objects kept at the given poses."""
         state = [np.array(positions, np.float64), np.array(quaternions, np.float64)]
-        return state + ([np.zeros_like(state[0]), np.zeros_like(state[0])] if self.config.uses_velocities else [None, None])
+        return state + (
+            [np.zeros_like(state[0]), np.zeros_like(state[0])]
+            if self.config.uses_velocities
+            else [None, None]
+        )
 
     def _free_flight(self, positions, quaternions, step_velocities, gravity_step):
         if step_velocities is None:
@@ -342,7 +365,9 @@ def rigid_velocities_from_vertices(geometry, dynamic_vertex_positions, dynamic_v
         design = np.zeros((len(offsets), 3, 6))
         design[:, :, :3] = np.eye(3)
         design[:, :, 3:] = -_cross_matrices(offsets)  # ω × r = −[r]× ω
-        solution, *_ = np.linalg.lstsq(design.reshape(-1, 6), dynamic_vertex_velocities[rows].reshape(-1), rcond=None)
+        solution, *_ = np.linalg.lstsq(
+            design.reshape(-1, 6), dynamic_vertex_velocities[rows].reshape(-1), rcond=None
+        )
         linear[obj], angular[obj] = solution[:3], solution[3:]
     return linear, angular
 
@@ -367,7 +392,9 @@ def rigid_poses_from_vertices(geometry, dynamic_vertex_positions, static_positio
     owner = geometry.vertex_object[dynamic]
     for obj in np.flatnonzero(~geometry.static):
         rows = owner == obj
-        rotation, translation = fit_rigid_transform(geometry.rest_vertices[dynamic[rows]], dynamic_vertex_positions[rows])
+        rotation, translation = fit_rigid_transform(
+            geometry.rest_vertices[dynamic[rows]], dynamic_vertex_positions[rows]
+        )
         positions[obj] = translation
         quaternions[obj] = matrix_to_quat(rotation)
     return positions, quaternions

@@ -111,7 +111,10 @@ def jittered_step_velocities(scene, frame, generator, config: TrainingConfig):
     """Linear and angular velocities (O, 3) at `frame` in metres and radians per step, with
     per-object noise of the pose noise's standard deviations (none on static objects)."""
     noise = sample_rigid_pose_noise(
-        torch.from_numpy(~scene.geometry.static), config.noise_translation_std, config.noise_rotation_std, generator
+        torch.from_numpy(~scene.geometry.static),
+        config.noise_translation_std,
+        config.noise_rotation_std,
+        generator,
     )
     linear = scene.velocities[frame] * scene.dt + noise.translations.double().numpy()
     angular = scene.angular_velocities[frame] * scene.dt + noise.rotation_vectors.double().numpy()
@@ -123,19 +126,35 @@ def training_example(simulator_config, scene, frame, generator, config: Training
     accelerations, or (Vd, 6) position and velocity corrections for a velocity state
     (simulator.py's module docstring)."""
     geometry = scene.geometry
-    clean_positions, clean_quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
-    positions, quaternions = jitter_frame_t(clean_positions, clean_quaternions, geometry.static, generator, config)
-    velocities = jittered_step_velocities(scene, frame, generator, config) if simulator_config.uses_velocities else None
+    clean_positions, clean_quaternions = (
+        scene.positions[frame - 1 : frame + 2],
+        scene.quaternions[frame - 1 : frame + 2],
+    )
+    positions, quaternions = jitter_frame_t(
+        clean_positions, clean_quaternions, geometry.static, generator, config
+    )
+    velocities = (
+        jittered_step_velocities(scene, frame, generator, config)
+        if simulator_config.uses_velocities
+        else None
+    )
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
-        after = after + now - geometry.world_vertices(clean_positions[1], clean_quaternions[1], geometry.dynamic_vertices)
+        after = (
+            after
+            + now
+            - geometry.world_vertices(clean_positions[1], clean_quaternions[1], geometry.dynamic_vertices)
+        )
     next_velocities = None
     if velocities is not None:
         next_velocities = rigid_point_velocities(
             geometry.world_vertices(clean_positions[2], clean_quaternions[2], geometry.dynamic_vertices),
-            geometry.vertex_object[geometry.dynamic_vertices], clean_positions[2],
-            scene.velocities[frame + 1] * scene.dt, scene.angular_velocities[frame + 1] * scene.dt)
+            geometry.vertex_object[geometry.dynamic_vertices],
+            clean_positions[2],
+            scene.velocities[frame + 1] * scene.dt,
+            scene.angular_velocities[frame + 1] * scene.dt,
+        )
     targets = acceleration_targets(after, previous, now, next_velocities)
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
 
@@ -158,7 +177,9 @@ class TrainingBatches(torch.utils.data.Dataset):
         for _ in range(self.config.batch_size):
             scene = self.scenes[rng.integers(len(self.scenes))]
             frame = int(rng.integers(1, scene.positions.shape[0] - 1))  # t−1 and t+1 inside the trajectory
-            examples.append(training_example(self.simulator_config, scene, frame, noise_generator, self.config))
+            examples.append(
+                training_example(self.simulator_config, scene, frame, noise_generator, self.config)
+            )
         return {
             "graph": batch_graphs([e[0].graph for e in examples]),
             "rows": _dynamic_rows([e[0] for e in examples]),
@@ -177,8 +198,16 @@ def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
     import multiprocessing
 
     method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    return iter(torch.utils.data.DataLoader(batches, batch_size=None, sampler=range(start, stop), num_workers=workers,
-                                            prefetch_factor=4, multiprocessing_context=multiprocessing.get_context(method)))
+    return iter(
+        torch.utils.data.DataLoader(
+            batches,
+            batch_size=None,
+            sampler=range(start, stop),
+            num_workers=workers,
+            prefetch_factor=4,
+            multiprocessing_context=multiprocessing.get_context(method),
+        )
+    )
 
 
 class Trainer:
@@ -207,7 +236,9 @@ class Trainer:
         accumulate = self.step < self.config.normalizer_accumulation_steps
         graph = batch["graph"].to(self.device)
         normalized_targets = self.simulator.normalized_targets(batch["targets"].to(self.device), accumulate)
-        with torch.autocast(torch.device(self.device).type, dtype=torch.bfloat16, enabled=self.config.precision == "bf16"):
+        with torch.autocast(
+            torch.device(self.device).type, dtype=torch.bfloat16, enabled=self.config.precision == "bf16"
+        ):
             predictions = self.model(graph, accumulate)[batch["rows"].to(self.device)]
         loss = regression_loss(predictions.float(), normalized_targets, self.config)
         self._apply(loss)
@@ -250,7 +281,9 @@ class Trainer:
     def load_state(self, state: dict) -> None:
         processes = int(state["world_size"]) if "world_size" in state else len(json.loads(state["rng"]))
         if processes != distributed.world_size():
-            raise FignetError(f"the checkpoint was written by {processes} process(es); resume it with as many")
+            raise FignetError(
+                f"the checkpoint was written by {processes} process(es); resume it with as many"
+            )
         self.step = int(state["step"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.history = json.loads(state["history"])
@@ -259,8 +292,12 @@ class Trainer:
         """Rank 0 writes the checkpoint atomically; the others wait for it."""
         state = self.state()
         if self.rank == 0:
-            save_checkpoint(path, self.simulator, training_state=state,
-                            extra={"trained_properties": ranges_to_json(self.simulator.trained_properties)})
+            save_checkpoint(
+                path,
+                self.simulator,
+                training_state=state,
+                extra={"trained_properties": ranges_to_json(self.simulator.trained_properties)},
+            )
         distributed.barrier()
 
 
@@ -282,7 +319,9 @@ def _dynamic_rows(scene_graphs) -> torch.Tensor:
     return torch.cat(rows)
 
 
-def make_trainer(dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0):
+def make_trainer(
+    dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0
+):
     """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
     or a new run that starts from the weights and normaliser statistics of `init_from`."""
     dataset_path = Path(dataset_path)
@@ -293,11 +332,18 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
         if state is None:
             raise FignetError(f"{resume_from}: holds no training state to resume from (an exported model?)")
         if state["data_hash"] != data_hash:
-            raise FignetError(f"{resume_from}: was trained on other data than {dataset_path}; start a new run")
-        stored = {"target_keeps_noise": False, **json.loads(state["training_config"])}  # absent: a run before the field (precision too)
+            raise FignetError(
+                f"{resume_from}: was trained on other data than {dataset_path}; start a new run"
+            )
+        stored = {
+            "target_keeps_noise": False,
+            **json.loads(state["training_config"]),
+        }  # absent: a run before the field (precision too)
         training_config = TrainingConfig(**{**stored, "steps": training_config.steps})
     if resume_from is None:
-        simulator_config = dataclasses.replace(simulator_config, dt=float(data.dt), gravity=tuple(float(g) for g in data.gravity))
+        simulator_config = dataclasses.replace(
+            simulator_config, dt=float(data.dt), gravity=tuple(float(g) for g in data.gravity)
+        )
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
@@ -305,8 +351,10 @@ def make_trainer(dataset_path, simulator_config, training_config, device="cpu", 
             _load_weights(simulator, init_from)
     scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
     if simulator.config.uses_velocities and not all(scene.velocities_recorded for scene in scenes):
-        raise FignetError(f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "
-                          "model learns from; make it again with `fignetctl make-dataset`")
+        raise FignetError(
+            f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "
+            "model learns from; make it again with `fignetctl make-dataset`"
+        )
     trainer = Trainer(scenes, simulator, training_config, device, data_hash, workers)
     if state is not None:
         trainer.load_state(state)
@@ -320,23 +368,44 @@ def _load_weights(simulator, path) -> None:
     try:
         simulator.load_state_dict(source.state_dict())
     except RuntimeError as error:
-        raise FignetError(f"{path}: its network differs from the one asked for (--model, --size); "
-                          f"give the same ones ({str(error).splitlines()[0]})") from None
+        raise FignetError(
+            f"{path}: its network differs from the one asked for (--model, --size); "
+            f"give the same ones ({str(error).splitlines()[0]})"
+        ) from None
 
 
-def simulator_config_for(architecture, size, collision_radius=None, max_faces=256, max_static_edge=None, max_vertex_offset=1.0,
-                         speculative=False, state="positions", static_receivers=True) -> SimulatorConfig:
+def simulator_config_for(
+    architecture,
+    size,
+    collision_radius=None,
+    max_faces=256,
+    max_static_edge=None,
+    max_vertex_offset=1.0,
+    speculative=False,
+    state="positions",
+    static_receivers=True,
+) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
     from fignetctl.core.model.simulator import output_size_for
 
-    graph = GraphConfig(surface_edges=architecture == "fignet", max_vertex_offset=max_vertex_offset, speculative=speculative,
-                        static_receivers=static_receivers)
+    graph = GraphConfig(
+        surface_edges=architecture == "fignet",
+        max_vertex_offset=max_vertex_offset,
+        speculative=speculative,
+        static_receivers=static_receivers,
+    )
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
     network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state))
-    return SimulatorConfig(network=network, graph=graph, max_faces_per_object=max_faces, max_static_edge=max_static_edge, state=state)
+    return SimulatorConfig(
+        network=network,
+        graph=graph,
+        max_faces_per_object=max_faces,
+        max_static_edge=max_static_edge,
+        state=state,
+    )
 
 
 def write_loss_csv(path, history) -> None:

@@ -1,13 +1,24 @@
 """A torch radiance field (dense density grid + colour features, DVGO-like) for fit-nerf.
 
-    model = load_nerf("nerf.pt")
-    rgb, depth, opacity = model.render(cameras, index)        # any pinhole camera
-    out = model.render_rays(origins, directions, warp=bend)   # ray bending for rerender
-    sigma = model.density(points)                             # for extract-mesh
+model = load_nerf("nerf.pt")
+rgb, depth, opacity = model.render(cameras, index)        # any pinhole camera
+out = model.render_rays(origins, directions, warp=bend)   # ray bending for rerender
+sigma = model.density(points)                             # for extract-mesh
 """
 
 from fignetctl.core.nerf.config import PRESETS, NerfConfig, preset_config
 from fignetctl.core.nerf.io import FORMAT, FORMAT_VERSION, load_nerf, read_nerf_payload, save_nerf
 from fignetctl.core.nerf.model import NerfModel, Rendering
 
-__all__ = ["PRESETS", "NerfConfig", "preset_config", "FORMAT", "FORMAT_VERSION", "load_nerf", "read_nerf_payload", "save_nerf", "NerfModel", "Rendering"]
+__all__ = [
+    "PRESETS",
+    "NerfConfig",
+    "preset_config",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "load_nerf",
+    "read_nerf_payload",
+    "save_nerf",
+    "NerfModel",
+    "Rendering",
+]

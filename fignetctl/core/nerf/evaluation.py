@@ -32,7 +32,10 @@ def evaluate_views(model, views, indices, depth_truth=None, max_depth_scale=None
                 errors.append(error)
                 entry["depth_median_abs_error"] = float(np.median(error))
         per_view.append(entry)
-    result = {"psnr": float(np.mean([v["psnr"] for v in per_view])) if per_view else float("nan"), "per_view": per_view}
+    result = {
+        "psnr": float(np.mean([v["psnr"] for v in per_view])) if per_view else float("nan"),
+        "per_view": per_view,
+    }
     if errors:
         result["depth_median_abs_error"] = float(np.median(np.concatenate(errors)))
     return result, renderings

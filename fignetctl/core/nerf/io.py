@@ -71,12 +71,24 @@ def load_nerf(path, device="cpu", with_training_state=False):
         model.field.density_grid = torch.nn.Parameter(torch.zeros(1, 1, *shape))
         model.occupancy.occupied = torch.ones(shape, dtype=torch.bool)
         if "feature_shape" in payload:  # the colour grid may have grown during training
-            model.field.feature_grid = torch.nn.Parameter(torch.zeros(1, *(int(s) for s in payload["feature_shape"])))
+            model.field.feature_grid = torch.nn.Parameter(
+                torch.zeros(1, *(int(s) for s in payload["feature_shape"]))
+            )
         model.load_state_dict(payload["model"])
         model.metrics = json.loads(payload.get("metrics", "{}"))
         model.inputs = json.loads(payload.get("inputs", "{}"))
-    except (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, RecursionError) as error:
-        raise FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})") from None
+    except (
+        KeyError,
+        TypeError,
+        ValueError,
+        RuntimeError,
+        AttributeError,
+        IndexError,
+        RecursionError,
+    ) as error:
+        raise FormatError(
+            f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})"
+        ) from None
     model.to(device).eval()
     if with_training_state:
         return model, payload.get("training_state")

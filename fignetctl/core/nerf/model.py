@@ -37,7 +37,9 @@ class NerfModel(nn.Module):
         self.field = GridField(bounds, config, density_resolution)
         self.occupancy = OccupancyGrid(bounds, self.field.density_grid.shape[2:])
         colour = torch.tensor(BACKGROUNDS[config.background])
-        self.background_logit = nn.Parameter(torch.logit(colour.clamp(1e-3, 1 - 1e-3)), requires_grad=config.background == "learned")
+        self.background_logit = nn.Parameter(
+            torch.logit(colour.clamp(1e-3, 1 - 1e-3)), requires_grad=config.background == "learned"
+        )
 
     @property
     def bounds(self) -> np.ndarray:
@@ -59,8 +61,12 @@ class NerfModel(nn.Module):
     def refresh_occupancy(self) -> None:
         """Re-mark empty space from the current densities (at the density grid's resolution)."""
         if tuple(self.occupancy.occupied.shape) != tuple(self.field.density_grid.shape[2:]):
-            self.occupancy.occupied = torch.ones(self.field.density_grid.shape[2:], dtype=torch.bool, device=self.occupancy.occupied.device)
-        reference_step = self.config.step_ratio * self.field.reference_voxel  # alpha_init is defined at this step
+            self.occupancy.occupied = torch.ones(
+                self.field.density_grid.shape[2:], dtype=torch.bool, device=self.occupancy.occupied.device
+            )
+        reference_step = (
+            self.config.step_ratio * self.field.reference_voxel
+        )  # alpha_init is defined at this step
         self.occupancy.refresh(self.field, reference_step, self.config.occupancy_threshold)
 
     # -- the API later stages use -------------------------------------------------------------
@@ -68,13 +74,24 @@ class NerfModel(nn.Module):
         """σ (P,) (1 / world unit) at world points (P, 3), numpy or torch (returns the same kind)."""
         as_numpy = isinstance(points, np.ndarray)
         device = self.field.density_grid.device
-        tensor = torch.as_tensor(np.asarray(points, np.float32) if as_numpy else points, device=device, dtype=torch.float32)
+        tensor = torch.as_tensor(
+            np.asarray(points, np.float32) if as_numpy else points, device=device, dtype=torch.float32
+        )
         with torch.set_grad_enabled(not as_numpy and torch.is_grad_enabled()):
             sigma = self.field.density(tensor.reshape(-1, 3))
         return sigma.detach().cpu().numpy() if as_numpy else sigma
 
-    def render_rays(self, origins, directions, warp=None, jitter=None, chunk=None, skip_empty=True, weight_threshold=None,
-                    transmittance_threshold=0.0):
+    def render_rays(
+        self,
+        origins,
+        directions,
+        warp=None,
+        jitter=None,
+        chunk=None,
+        skip_empty=True,
+        weight_threshold=None,
+        transmittance_threshold=0.0,
+    ):
         """Volume-render rays (R, 3) + (R, 3) (torch, any direction length).
 
         warp(points (P,3)) -> points (P,3) (or (points, directions)) is applied to every sample
@@ -85,15 +102,36 @@ class NerfModel(nn.Module):
         with `transmittance_threshold` > 0, samples behind which less light is left are dropped.
         """
         if chunk is not None and len(origins) > chunk:
-            parts = [self.render_rays(o, d, warp, None if jitter is None else j, None, skip_empty, weight_threshold, transmittance_threshold)
-                     for o, d, j in zip(origins.split(chunk), directions.split(chunk), (jitter.split(chunk) if jitter is not None else [None] * len(origins.split(chunk))))]
+            parts = [
+                self.render_rays(
+                    o,
+                    d,
+                    warp,
+                    None if jitter is None else j,
+                    None,
+                    skip_empty,
+                    weight_threshold,
+                    transmittance_threshold,
+                )
+                for o, d, j in zip(
+                    origins.split(chunk),
+                    directions.split(chunk),
+                    (jitter.split(chunk) if jitter is not None else [None] * len(origins.split(chunk))),
+                )
+            ]
             return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
         low, high = self.field.bounds[0], self.field.bounds[1]
         samples = sample_along_rays(origins, directions, low, high, self.step_length, jitter)
         occupancy = self.occupancy if skip_empty else None
         rgb, depth, opacity, _ = render_samples(
-            self.field, occupancy, samples, directions, self.background, warp,
-            self.config.weight_threshold if weight_threshold is None else weight_threshold, transmittance_threshold,
+            self.field,
+            occupancy,
+            samples,
+            directions,
+            self.background,
+            warp,
+            self.config.weight_threshold if weight_threshold is None else weight_threshold,
+            transmittance_threshold,
         )
         return {"rgb": rgb, "depth": depth, "distance": depth * directions.norm(dim=-1), "opacity": opacity}
 
@@ -107,7 +145,9 @@ class NerfModel(nn.Module):
         d = torch.as_tensor(directions.reshape(-1, 3), dtype=torch.float32, device=device)
         out = self.render_rays(o, d, warp=warp, chunk=chunk)
         as_image = lambda x, *shape: x.reshape(height, width, *shape).float().cpu().numpy()  # noqa: E731
-        return Rendering(as_image(out["rgb"].clamp(0, 1), 3), as_image(out["depth"]), as_image(out["opacity"]))
+        return Rendering(
+            as_image(out["rgb"].clamp(0, 1), 3), as_image(out["depth"]), as_image(out["opacity"])
+        )
 
 
 def _camera_tuple(camera, index):

@@ -64,12 +64,22 @@ def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
         mask = weights > weight_threshold
         if mask.any():
             colours = colour_of(mask)
-            rgb = rgb + torch.zeros_like(rgb).index_put((mask.nonzero()[:, 0],), weights[mask][:, None] * colours, accumulate=True)
+            rgb = rgb + torch.zeros_like(rgb).index_put(
+                (mask.nonzero()[:, 0],), weights[mask][:, None] * colours, accumulate=True
+            )
     return rgb, depth, opacity, weights
 
 
-def render_samples(field, occupancy, samples: RaySamples, directions, background, warp=None, weight_threshold=0.0,
-                   transmittance_threshold=0.0):
+def render_samples(
+    field,
+    occupancy,
+    samples: RaySamples,
+    directions,
+    background,
+    warp=None,
+    weight_threshold=0.0,
+    transmittance_threshold=0.0,
+):
     """Query the field at the samples (through `warp` when given) and composite.
 
     warp(points (P,3)) -> points (P,3), or -> (points, directions) to also turn the view
@@ -89,7 +99,11 @@ def render_samples(field, occupancy, samples: RaySamples, directions, background
             query, query_directions = warped
         else:
             query = warped
-    keep = occupancy.lookup(query) if occupancy is not None else torch.ones(len(query), dtype=torch.bool, device=query.device)
+    keep = (
+        occupancy.lookup(query)
+        if occupancy is not None
+        else torch.ones(len(query), dtype=torch.bool, device=query.device)
+    )
     rows, cols = flat_index[0][keep], flat_index[1][keep]
     query, query_directions = query[keep], query_directions[keep]
     if transmittance_threshold > 0 and len(query):

@@ -27,12 +27,28 @@ from fignetctl.errors import FignetError
 
 def make_optimizer(model: NerfModel, config: NerfConfig):
     groups = [
-        {"params": [model.field.density_grid, model.field.feature_grid], "lr": config.learning_rate_grid, "base_lr": config.learning_rate_grid},
+        {
+            "params": [model.field.density_grid, model.field.feature_grid],
+            "lr": config.learning_rate_grid,
+            "base_lr": config.learning_rate_grid,
+        },
     ]
     if model.field.colour_mlp is not None:
-        groups.append({"params": list(model.field.colour_mlp.parameters()), "lr": config.learning_rate_mlp, "base_lr": config.learning_rate_mlp})
+        groups.append(
+            {
+                "params": list(model.field.colour_mlp.parameters()),
+                "lr": config.learning_rate_mlp,
+                "base_lr": config.learning_rate_mlp,
+            }
+        )
     if config.background == "learned":
-        groups.append({"params": [model.background_logit], "lr": config.learning_rate_grid, "base_lr": config.learning_rate_grid})
+        groups.append(
+            {
+                "params": [model.background_logit],
+                "lr": config.learning_rate_grid,
+                "base_lr": config.learning_rate_grid,
+            }
+        )
     return torch.optim.Adam(groups, betas=(0.9, 0.99))
 
 
@@ -48,7 +64,9 @@ class NerfTrainer:
         self.step, self.seconds, self.history, self.data_hash = 0, 0.0, [], data_hash
 
     def learning_rate_factor(self) -> float:
-        return self.config.learning_rate_decay ** (min(self.step, self.config.steps) / max(self.config.steps, 1))
+        return self.config.learning_rate_decay ** (
+            min(self.step, self.config.steps) / max(self.config.steps, 1)
+        )
 
     def _before_step(self) -> None:
         config = self.config
@@ -65,21 +83,39 @@ class NerfTrainer:
     def train_step(self) -> dict:
         started = time.perf_counter()
         self._before_step()
-        index = torch.randint(len(self.origins), (self.config.rays_per_batch,), generator=self.generator).to(self.device)
+        index = torch.randint(len(self.origins), (self.config.rays_per_batch,), generator=self.generator).to(
+            self.device
+        )
         jitter = torch.rand(self.config.rays_per_batch, generator=self.generator).to(self.device)
         warm = self.step >= self.config.occupancy_warmup
-        out = self.model.render_rays(self.origins[index], self.directions[index], jitter=jitter, weight_threshold=None if warm else 0.0,
-                                     transmittance_threshold=self.config.transmittance_threshold if warm else 0.0)
+        out = self.model.render_rays(
+            self.origins[index],
+            self.directions[index],
+            jitter=jitter,
+            weight_threshold=None if warm else 0.0,
+            transmittance_threshold=self.config.transmittance_threshold if warm else 0.0,
+        )
         mse = torch.mean((out["rgb"] - self.colours[index]) ** 2)
-        loss = mse + self.config.tv_weight * self.model.field.total_variation() if self.config.tv_weight > 0 else mse
+        loss = (
+            mse + self.config.tv_weight * self.model.field.total_variation()
+            if self.config.tv_weight > 0
+            else mse
+        )
         if not torch.isfinite(loss):
-            raise FignetError(f"the loss became {float(loss.detach())} at step {self.step + 1}; try a lower learning rate or check the images")
+            raise FignetError(
+                f"the loss became {float(loss.detach())} at step {self.step + 1}; try a lower learning rate or check the images"
+            )
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
         self.step += 1
         self.seconds += time.perf_counter() - started
-        record = {"step": self.step, "loss": float(loss.detach()), "psnr": psnr(float(mse.detach())), "seconds": round(self.seconds, 4)}
+        record = {
+            "step": self.step,
+            "loss": float(loss.detach()),
+            "psnr": psnr(float(mse.detach())),
+            "seconds": round(self.seconds, 4),
+        }
         self.history.append(record)
         return record
 
@@ -130,7 +166,9 @@ class NerfTrainer:
         save_nerf(path, self.model, metrics, self.inputs(), self.state())
 
 
-def make_trainer(image_dir, cameras, config: NerfConfig, device="cpu", resume_from=None, data_hash="") -> NerfTrainer:
+def make_trainer(
+    image_dir, cameras, config: NerfConfig, device="cpu", resume_from=None, data_hash=""
+) -> NerfTrainer:
     """A trainer on the images of `cameras` in `image_dir`, resumed from a nerf.pt if given."""
     if resume_from is not None:
         model, state = load_nerf(resume_from, device=device, with_training_state=True)
@@ -167,4 +205,3 @@ def finish(trainer: NerfTrainer, path, depth_truth=None):
     }
     trainer.save(path, metrics)
     return metrics, renderings
-

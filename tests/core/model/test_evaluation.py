@@ -16,8 +16,12 @@ def test_point_estimates_equal_the_pooled_metrics():
     model, baseline = records(rng, [3, 7, 1, 5]), records(rng, [3, 7, 1, 5])
     result = compare(model, baseline)
     m, b = summarize_errors(model), summarize_errors(baseline)
-    assert result["translation_rmse_ratio"] == pytest.approx(m["translation_rmse_m"] / b["translation_rmse_m"])
-    assert result["rotation_error_difference_deg"] == pytest.approx(m["rotation_error_deg"] - b["rotation_error_deg"])
+    assert result["translation_rmse_ratio"] == pytest.approx(
+        m["translation_rmse_m"] / b["translation_rmse_m"]
+    )
+    assert result["rotation_error_difference_deg"] == pytest.approx(
+        m["rotation_error_deg"] - b["rotation_error_deg"]
+    )
     closer = np.concatenate([x["translation"] < y["translation"] for x, y in zip(model, baseline)]).mean()
     assert result["objects_closer"] == pytest.approx(closer)
     assert result["objects"] == 16 and result["trajectories"] == 4
@@ -36,7 +40,9 @@ def test_bootstrap_interval_matches_a_resampling_loop():
         ratios.append(m["translation_rmse_m"] / b["translation_rmse_m"])
         differences.append(m["rotation_error_deg"] - b["rotation_error_deg"])
     np.testing.assert_allclose(result["translation_rmse_ratio_95"], np.percentile(ratios, [2.5, 97.5]))
-    np.testing.assert_allclose(result["rotation_error_difference_deg_95"], np.percentile(differences, [2.5, 97.5]))
+    np.testing.assert_allclose(
+        result["rotation_error_difference_deg_95"], np.percentile(differences, [2.5, 97.5])
+    )
 
 
 def test_a_model_at_half_the_error_everywhere_has_a_tight_interval_at_one_half():

@@ -37,8 +37,10 @@ def untrained_simulator(scene):
 
 def three_frames(scene):
     """Frames t−1, t and t (read for static objects only) of a two-frame scene."""
-    return (np.concatenate([scene.positions, scene.positions[1:]]),
-            np.concatenate([scene.quaternions, scene.quaternions[1:]]))
+    return (
+        np.concatenate([scene.positions, scene.positions[1:]]),
+        np.concatenate([scene.quaternions, scene.quaternions[1:]]),
+    )
 
 
 def test_free_flight_poses_follow_the_exact_throw_for_many_steps():
@@ -48,7 +50,9 @@ def test_free_flight_poses_follow_the_exact_throw_for_many_steps():
     positions = [poses[0][0], poses[1][0]]
     quaternions = [poses[0][1], poses[1][1]]
     for _ in range(60):
-        p, q = free_flight_poses(np.array(positions[-2:])[:, None], np.array(quaternions[-2:])[:, None], GRAVITY * DT**2)
+        p, q = free_flight_poses(
+            np.array(positions[-2:])[:, None], np.array(quaternions[-2:])[:, None], GRAVITY * DT**2
+        )
         positions.append(p[0])
         quaternions.append(q[0])
     position, quaternion = exact_pose(61 * DT, start, velocity, spin, q0)
@@ -88,7 +92,9 @@ def test_the_network_is_not_run_while_nothing_touches(monkeypatch):
 
     monkeypatch.setattr(simulator, "forward", refuse)
     positions, _ = rollout(simulator, scene, 20, guards=Guards(free_flight=tuple(GRAVITY * DT**2)))
-    position, _ = exact_pose(20 * DT, scene.positions[1, 1], np.array([1.0, 0, 0]), 0.0, scene.quaternions[1, 1])
+    position, _ = exact_pose(
+        20 * DT, scene.positions[1, 1], np.array([1.0, 0, 0]), 0.0, scene.quaternions[1, 1]
+    )
     np.testing.assert_allclose(positions[-1, 1], position, atol=1e-9)
     with pytest.raises(AssertionError, match="the network ran"):
         rollout(simulator, scene, 1)  # without free flight the network moves it

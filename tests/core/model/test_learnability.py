@@ -24,25 +24,41 @@ def cube_scene(count, seed, spawn_region):
     import trimesh
 
     box = trimesh.creation.box((1.0, 1.0, 1.0))
-    asset = ShapeAsset(name="cube", vertices=np.asarray(box.vertices, np.float32), faces=np.asarray(box.faces, np.int32),
-                       convex_parts=(np.asarray(box.vertices, np.float32),), source="test")
-    config = movi.movi_config("movi-b", duration=1.0, num_objects=(count, count), spawn_region=spawn_region,
-                              materials=(movi.RUBBER,), scale_range=(1.0, 1.0))
+    asset = ShapeAsset(
+        name="cube",
+        vertices=np.asarray(box.vertices, np.float32),
+        faces=np.asarray(box.faces, np.int32),
+        convex_parts=(np.asarray(box.vertices, np.float32),),
+        source="test",
+    )
+    config = movi.movi_config(
+        "movi-b",
+        duration=1.0,
+        num_objects=(count, count),
+        spawn_region=spawn_region,
+        materials=(movi.RUBBER,),
+        scale_range=(1.0, 1.0),
+    )
     return movi.dataset_file(list(movi.generate([asset], config, seed, range(1))), [asset], config, 1, {})
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("count, seed, region", [
-    (1, 0, ((-0.5, -0.5, 1.0), (0.5, 0.5, 2.0))),  # dropped: falls, bounces, slides, comes to rest
-    (2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5))),  # tossed at each other: they collide at frame 12
-])
+@pytest.mark.parametrize(
+    "count, seed, region",
+    [
+        (1, 0, ((-0.5, -0.5, 1.0), (0.5, 0.5, 2.0))),  # dropped: falls, bounces, slides, comes to rest
+        (2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5))),  # tossed at each other: they collide at frame 12
+    ],
+)
 def test_a_model_overfits_a_few_boxes_to_most_of_the_one_step_variance(count, seed, region):
     torch.set_num_threads(1)
     data = cube_scene(count, seed, region)
     trajectory = next(iter(data.trajectories.values()))
     assert trajectory.velocities is not None and np.all(trajectory.positions[:, 1:, 2] < 2.5)
     if count == 2:
-        assert np.linalg.norm(trajectory.positions[:, 1] - trajectory.positions[:, 2], axis=1).min() < 1.2  # in contact
+        assert (
+            np.linalg.norm(trajectory.positions[:, 1] - trajectory.positions[:, 2], axis=1).min() < 1.2
+        )  # in contact
     scenes = scenes_from_data(data, CONFIG, TRAINING_STATIC_REACH)
     trainer = overfit(CONFIG, scenes, steps=800, batch_size=4, learning_rate=(3e-3, 3e-4))
     simulator = trainer.simulator.eval()

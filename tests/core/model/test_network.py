@@ -39,8 +39,7 @@ def random_graph(num_nodes, num_edges, seed=0):
     """num_edges : edge set name -> count; the graph has exactly those edge sets."""
     generator = torch.Generator().manual_seed(seed)
     edge_sets = {
-        name: random_edge_set(name, count, num_nodes, generator)
-        for name, count in num_edges.items()
+        name: random_edge_set(name, count, num_nodes, generator) for name, count in num_edges.items()
     }
     return MultiGraph(torch.randn(num_nodes, NODE_FEATURE_SIZE, generator=generator), edge_sets)
 
@@ -61,9 +60,7 @@ def four_node_graph():
         FACE_FACE: (torch.tensor([[0, 1, 2]]), torch.tensor([[2, 0, 1]])),
     }
     edge_sets = {
-        name: EdgeSet(
-            name, torch.randn(len(s), EDGE_FEATURE_SIZES[name], generator=generator), s, r
-        )
+        name: EdgeSet(name, torch.randn(len(s), EDGE_FEATURE_SIZES[name], generator=generator), s, r)
         for name, (s, r) in index_pairs.items()
     }
     return MultiGraph(torch.randn(4, NODE_FEATURE_SIZE, generator=generator), edge_sets)
@@ -99,9 +96,7 @@ def test_node_that_receives_nothing_keeps_its_row_and_depends_only_on_itself():
     graph_with_isolated_node = MultiGraph(features, graph.edge_sets)
     model = tiny_model_for(graph)
     output = model(graph_with_isolated_node)
-    alone = MultiGraph(
-        features[isolated:], {name: random_edge_set(name, 0, 1, None) for name in ALL_SETS}
-    )
+    alone = MultiGraph(features[isolated:], {name: random_edge_set(name, 0, 1, None) for name in ALL_SETS})
     assert output.shape == (9, 3)
     torch.testing.assert_close(output[isolated], model(alone)[0])
     torch.testing.assert_close(output[:isolated], model(graph))
@@ -109,9 +104,7 @@ def test_node_that_receives_nothing_keeps_its_row_and_depends_only_on_itself():
 
 def test_batched_graphs_give_the_same_outputs_as_separate_graphs():
     first = random_graph(7, ALL_SETS, seed=1)
-    second = random_graph(
-        11, {MESH_TO_OBJECT: 5, OBJECT_TO_MESH: 9, NODE_NODE: 0, FACE_FACE: 3}, seed=2
-    )
+    second = random_graph(11, {MESH_TO_OBJECT: 5, OBJECT_TO_MESH: 9, NODE_NODE: 0, FACE_FACE: 3}, seed=2)
     model = tiny_model_for(first)
     batched = model(batch_graphs([first, second]))
     separate = torch.cat([model(first), model(second)])
@@ -135,9 +128,7 @@ def test_permuting_nodes_permutes_the_output():
     new_index_of_old = torch.empty_like(permutation)
     new_index_of_old[permutation] = torch.arange(10)
     edge_sets = {
-        name: EdgeSet(
-            name, es.features, new_index_of_old[es.senders], new_index_of_old[es.receivers]
-        )
+        name: EdgeSet(name, es.features, new_index_of_old[es.senders], new_index_of_old[es.receivers])
         for name, es in graph.edge_sets.items()
     }
     permuted = MultiGraph(graph.node_features[permutation], edge_sets)
@@ -174,9 +165,7 @@ def test_each_face_face_message_part_reaches_only_its_receiver_vertex(part):
         torch.tensor([[0, 1, 2]]),
         torch.tensor([[5, 3, 4]]),
     )
-    graph = MultiGraph(
-        torch.randn(6, NODE_FEATURE_SIZE, generator=generator), {FACE_FACE: face_face}
-    )
+    graph = MultiGraph(torch.randn(6, NODE_FEATURE_SIZE, generator=generator), {FACE_FACE: face_face})
     model = tiny_model_for(graph, message_passing_steps=1)
     before = model(graph)
     model.processor[0].edge_updates[FACE_FACE].register_forward_hook(
@@ -192,9 +181,7 @@ def test_fignet_star_network_has_no_node_node_weights_and_uses_all_it_has():
     model = tiny_model_for(graph)
     assert not [name for name, _ in model.named_parameters() if NODE_NODE in name]
     model(graph).square().sum().backward()
-    unused = [
-        name for name, p in model.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0
-    ]
+    unused = [name for name, p in model.named_parameters() if p.grad is None or not p.grad.abs().sum() > 0]
     assert unused == []
     with pytest.raises(ValueError, match="built for edge sets"):
         model(random_graph(8, ALL_SETS))

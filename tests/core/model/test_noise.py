@@ -20,9 +20,7 @@ def two_boxes_and_a_floor():
 
 
 def test_rotation_vectors_give_rotations():
-    quarter_turn_about_z = rotation_matrices_from_rotation_vectors(
-        torch.tensor([[0.0, 0.0, math.pi / 2]])
-    )[0]
+    quarter_turn_about_z = rotation_matrices_from_rotation_vectors(torch.tensor([[0.0, 0.0, math.pi / 2]]))[0]
     torch.testing.assert_close(
         quarter_turn_about_z @ torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0])
     )
@@ -30,9 +28,7 @@ def test_rotation_vectors_give_rotations():
     identity = torch.eye(3).expand(50, 3, 3)
     torch.testing.assert_close(rotations @ rotations.transpose(1, 2), identity, atol=1e-6, rtol=0)
     torch.testing.assert_close(torch.linalg.det(rotations), torch.ones(50))
-    torch.testing.assert_close(
-        rotation_matrices_from_rotation_vectors(torch.zeros(1, 3))[0], torch.eye(3)
-    )
+    torch.testing.assert_close(rotation_matrices_from_rotation_vectors(torch.zeros(1, 3))[0], torch.eye(3))
 
 
 def test_noise_moves_each_object_rigidly_and_leaves_static_objects_alone():
@@ -72,10 +68,16 @@ def test_noise_on_poses_moves_the_vertices_as_the_noise_on_points_does():
     quaternions = quat_from_rotation_vector(rng.normal(size=(3, 3)))
     rest = rng.normal(size=(3, 5, 3))
     world = np.einsum("oij,okj->oki", quat_to_matrix(quaternions), rest) + centres[:, None]
-    noise = sample_rigid_pose_noise(torch.tensor([True, True, False]), 0.01, 0.3, torch.Generator().manual_seed(4))
+    noise = sample_rigid_pose_noise(
+        torch.tensor([True, True, False]), 0.01, 0.3, torch.Generator().manual_seed(4)
+    )
     noisy_centres, noisy_quaternions = apply_rigid_pose_noise_to_poses(centres, quaternions, noise)
     from_poses = np.einsum("oij,okj->oki", quat_to_matrix(noisy_quaternions), rest) + noisy_centres[:, None]
     owner = torch.arange(3).repeat_interleave(5)
-    from_points = apply_rigid_pose_noise(torch.from_numpy(world.reshape(-1, 3)), owner, torch.from_numpy(centres), noise)
-    np.testing.assert_allclose(from_poses.reshape(-1, 3), from_points.numpy(), atol=1e-6)  # noise.py builds its matrices in float32
+    from_points = apply_rigid_pose_noise(
+        torch.from_numpy(world.reshape(-1, 3)), owner, torch.from_numpy(centres), noise
+    )
+    np.testing.assert_allclose(
+        from_poses.reshape(-1, 3), from_points.numpy(), atol=1e-6
+    )  # noise.py builds its matrices in float32
     np.testing.assert_array_equal(noisy_centres[2], centres[2])

@@ -29,9 +29,7 @@ def test_inverse_undoes_forward():
         normalized = normalizer(batch, accumulate=True)
         torch.testing.assert_close(normalizer.inverse(normalized), batch, rtol=1e-12, atol=1e-12)
     float32_batch = batches(seed=1)[1].float()
-    torch.testing.assert_close(
-        normalizer.inverse(normalizer(float32_batch, accumulate=False)), float32_batch
-    )
+    torch.testing.assert_close(normalizer.inverse(normalizer(float32_batch, accumulate=False)), float32_batch)
 
 
 def test_normalized_batch_has_zero_mean_and_unit_std():
@@ -41,9 +39,7 @@ def test_normalized_batch_has_zero_mean_and_unit_std():
     torch.testing.assert_close(
         normalized.mean(dim=0), torch.zeros(3, dtype=torch.float64), atol=1e-12, rtol=0
     )
-    torch.testing.assert_close(
-        normalized.std(dim=0, unbiased=False), torch.ones(3, dtype=torch.float64)
-    )
+    torch.testing.assert_close(normalized.std(dim=0, unbiased=False), torch.ones(3, dtype=torch.float64))
 
 
 def test_constant_and_near_constant_features_give_finite_output():

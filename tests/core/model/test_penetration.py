@@ -22,7 +22,9 @@ def _lowest(geometry, positions, quaternions):
 
 
 def test_a_box_that_falls_into_the_floor_ends_on_it_with_its_rotation_and_sideways_motion_kept():
-    floor = trimesh.creation.box(extents=[20, 20, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1]))
+    floor = trimesh.creation.box(
+        extents=[20, 20, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1])
+    )
     geometry = _scene(floor, trimesh.creation.box(extents=[1, 1, 1]))
     rng = np.random.default_rng(0)
     quaternions = np.array([IDENTITY, random_quaternions(rng, 1)[0]])
@@ -36,11 +38,15 @@ def test_a_box_that_falls_into_the_floor_ends_on_it_with_its_rotation_and_sidewa
 
 
 def test_an_object_that_stays_clear_or_starts_inside_is_left_alone():
-    floor = trimesh.creation.box(extents=[20, 20, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1]))
+    floor = trimesh.creation.box(
+        extents=[20, 20, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1])
+    )
     geometry = _scene(floor, trimesh.creation.box(extents=[1, 1, 1]))
     quaternions = np.array([IDENTITY, IDENTITY])
     clear = np.array([[0, 0, 0], [0, 0, 0.51]])
-    assert np.array_equal(push_out_of_static(geometry, clear + [0, 0, 0.2], quaternions, clear, quaternions)[0], clear)
+    assert np.array_equal(
+        push_out_of_static(geometry, clear + [0, 0, 0.2], quaternions, clear, quaternions)[0], clear
+    )
     inside = np.array([[0, 0, 0], [0, 0, 0.45]])  # 5 cm in already at t: not dragged through
     deeper = inside - [0, 0, 0.02]
     assert np.array_equal(push_out_of_static(geometry, inside, quaternions, deeper, quaternions)[0], deeper)
@@ -57,8 +63,12 @@ def test_a_fast_cube_does_not_tunnel_through_a_thin_plate():
 
 
 def test_a_box_pushed_into_a_corner_comes_out_of_both_walls():
-    floor = trimesh.creation.box(extents=[4, 4, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1]))
-    wall = trimesh.creation.box(extents=[0.2, 4, 4], transform=trimesh.transformations.translation_matrix([1.1, 0, 2]))
+    floor = trimesh.creation.box(
+        extents=[4, 4, 0.2], transform=trimesh.transformations.translation_matrix([0, 0, -0.1])
+    )
+    wall = trimesh.creation.box(
+        extents=[0.2, 4, 4], transform=trimesh.transformations.translation_matrix([1.1, 0, 2])
+    )
     geometry = _scene(trimesh.util.concatenate([floor, wall]), trimesh.creation.box(extents=[0.5, 0.5, 0.5]))
     quaternions = np.array([IDENTITY, IDENTITY])
     now = np.array([[0, 0, 0], [0.7, 0, 0.3]])

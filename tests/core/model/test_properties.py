@@ -12,7 +12,10 @@ def scene(friction, restitution, mass=1.0):
 
 def test_discrete_materials_are_checked_as_pairs():
     ranges = ranges_from_json(ranges_to_json(property_ranges([scene(0.4, 0.3, 2.0), scene(0.8, 0.7, 9.0)])))
-    assert ranges["dynamic"]["materials"] == [[0.4, 0.3], [0.8, 0.7]] and ranges["dynamic"]["mass"] == [2.0, 9.0]
+    assert ranges["dynamic"]["materials"] == [[0.4, 0.3], [0.8, 0.7]] and ranges["dynamic"]["mass"] == [
+        2.0,
+        9.0,
+    ]
     assert ranges["static"] == {"friction": [0.3, 0.3], "restitution": [0.5, 0.5], "materials": [[0.3, 0.5]]}
     names = ["floor", "ball"]
     properties, static = scene(0.81, 0.69, 5.0)

@@ -18,7 +18,12 @@ def edge_lengths(vertices, faces):
 
 def area(vertices, faces):
     triangles = vertices[faces]
-    return 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1).sum()
+    return (
+        0.5
+        * np.linalg.norm(
+            np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1
+        ).sum()
+    )
 
 
 def test_subdivision_bounds_edges_and_keeps_the_surface():
@@ -53,7 +58,9 @@ def test_only_dynamic_meshes_are_decimated():
 
     data = box_drop_file(frames=4, height=0.8)
     sphere = trimesh.creation.icosphere(subdivisions=3)  # 1280 faces
-    data.meshes["box"] = data.meshes["floor"] = Mesh(np.asarray(sphere.vertices, np.float32), np.asarray(sphere.faces, np.int32))
+    data.meshes["box"] = data.meshes["floor"] = Mesh(
+        np.asarray(sphere.vertices, np.float32), np.asarray(sphere.faces, np.int32)
+    )
     geometry = scene_from_trajectory(data, "00000", SimulatorConfig(max_faces_per_object=100)).geometry
     assert (geometry.face_object == 0).sum() == 1280  # static: whole
     assert 0 < (geometry.face_object == 1).sum() <= 100  # dynamic: decimated
@@ -68,13 +75,17 @@ def test_the_crop_of_static_faces_changes_no_graph_of_the_trajectory():
     contacts = 0
     for t in range(1, 39):
         graphs = [
-            build_scene_graph(s.geometry, s.positions[t - 1 : t + 2], s.quaternions[t - 1 : t + 2], config.graph).graph
+            build_scene_graph(
+                s.geometry, s.positions[t - 1 : t + 2], s.quaternions[t - 1 : t + 2], config.graph
+            ).graph
             for s in (full, cropped)
         ]
         a, b = graphs
         assert a.node_features.shape == b.node_features.shape
         # same nodes up to the order of static vertices: compare sorted rows
-        assert np.array_equal(np.sort(a.node_features.numpy(), axis=0), np.sort(b.node_features.numpy(), axis=0))
+        assert np.array_equal(
+            np.sort(a.node_features.numpy(), axis=0), np.sort(b.node_features.numpy(), axis=0)
+        )
         for name in a.edge_sets:
             fa, fb = a.edge_sets[name].features.numpy(), b.edge_sets[name].features.numpy()
             assert fa.shape == fb.shape

@@ -13,7 +13,10 @@ from fignetctl.core.model.scene_graph import (
 )
 from fignetctl.core.transforms import random_quaternions
 
-FLOOR = (np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+FLOOR = (
+    np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float),
+    np.array([[0, 1, 2], [0, 2, 3]]),
+)
 
 
 def _two_objects_over_floor():

@@ -34,8 +34,10 @@ class BallisticSimulator:
         rest = geometry.rest_vertices[np.isin(geometry.vertex_object, np.flatnonzero(dynamic))]
         self.sides.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
         flown = free_flight_poses(positions[:2], quaternions[:2], GRAVITY * self.dt**2)
-        return (np.where(dynamic[:, None], flown[0], positions[2]),
-                np.where(dynamic[:, None], flown[1], quaternions[2]))
+        return (
+            np.where(dynamic[:, None], flown[0], positions[2]),
+            np.where(dynamic[:, None], flown[1], quaternions[2]),
+        )
 
 
 def small_throw(path, size=0.1, dt=1 / 30, spin=3.0):
@@ -44,7 +46,9 @@ def small_throw(path, size=0.1, dt=1 / 30, spin=3.0):
     trajectory = data.trajectories["00000"]
     positions = trajectory.positions.copy()
     positions[:, 1, 0] = 0.7 * np.arange(2) * dt
-    trajectory = dataclasses.replace(trajectory, positions=positions, scales=np.array([1.0, size], np.float32))
+    trajectory = dataclasses.replace(
+        trajectory, positions=positions, scales=np.array([1.0, size], np.float32)
+    )
     write_trajectories(path, dataclasses.replace(data, trajectories={"00000": trajectory}))
     return trajectory
 
@@ -85,7 +89,9 @@ def test_auto_brings_the_largest_moving_object_to_the_training_size(tmp_path):
 def test_auto_leaves_a_scene_of_the_training_size_as_it_is(tmp_path):
     low, high = similarity.TRAINING_SIDE_RANGE  # the box's side is its scale
     inside, outside = (low + 0.01, high - 0.01, 2.0), (low - 0.01, high + 0.01, 0.12)
-    for size, expected in [(s, 1.0) for s in inside] + [(s, similarity.TRAINING_OBJECT_SIDE / s) for s in outside]:
+    for size, expected in [(s, 1.0) for s in inside] + [
+        (s, similarity.TRAINING_OBJECT_SIDE / s) for s in outside
+    ]:
         small_throw(tmp_path / f"throw-{size}.h5", size=size)
         data = read_trajectories(tmp_path / f"throw-{size}.h5")
         assert similarity.auto_scale(data, "00000") == pytest.approx(expected, rel=1e-6)
@@ -106,10 +112,14 @@ def test_the_rollout_command_scales_a_small_scene_by_default_and_says_so(tmp_pat
     from fignetctl.cli import cli
 
     small_throw(tmp_path / "throw.h5", size=0.12)
-    result = CliRunner().invoke(cli, ["rollout", str(tmp_path / "throw.h5"), "--steps", "2", "-o", str(tmp_path / "r.h5")])
+    result = CliRunner().invoke(
+        cli, ["rollout", str(tmp_path / "throw.h5"), "--steps", "2", "-o", str(tmp_path / "r.h5")]
+    )
     assert result.exit_code == 0, result.output
     assert f"simulated at {similarity.TRAINING_OBJECT_SIDE / 0.12:.4g}x its size" in result.output
-    assert read_trajectories(tmp_path / "r.h5").attrs["sim_scale"] == pytest.approx(similarity.TRAINING_OBJECT_SIDE / 0.12)
+    assert read_trajectories(tmp_path / "r.h5").attrs["sim_scale"] == pytest.approx(
+        similarity.TRAINING_OBJECT_SIDE / 0.12
+    )
 
 
 def test_a_moving_static_object_cannot_be_rescaled(tmp_path):
@@ -117,7 +127,9 @@ def test_a_moving_static_object_cannot_be_rescaled(tmp_path):
     trajectory = data.trajectories["00000"]
     positions = trajectory.positions.copy()
     positions[1, 0, 0] += 0.01  # the floor slides
-    data = dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions)})
+    data = dataclasses.replace(
+        data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions)}
+    )
     with pytest.raises(FignetError, match="static object 0 moves"):
         similarity.scaled_scene(data, "00000", 4.0)
 
@@ -128,6 +140,8 @@ def test_the_rollout_command_takes_auto_and_refuses_nonsense(tmp_path):
     from fignetctl.cli import cli
 
     small_throw(tmp_path / "throw.h5")
-    result = CliRunner().invoke(cli, ["rollout", str(tmp_path / "throw.h5"), "--sim-scale", "-2", "-o", str(tmp_path / "r.h5")])
+    result = CliRunner().invoke(
+        cli, ["rollout", str(tmp_path / "throw.h5"), "--sim-scale", "-2", "-o", str(tmp_path / "r.h5")]
+    )
     assert result.exit_code != 0 and "is not a positive number or 'auto'" in result.output
     assert not (tmp_path / "r.h5").exists()

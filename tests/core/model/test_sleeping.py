@@ -40,9 +40,26 @@ class DriftingSimulator:
 def cube_scene(starts, velocities, dt=1 / 30):
     """Unit cubes (vertices ±0.5) at `starts` (O, 3) with `velocities` (O, 3) m/s, on a static floor."""
     cube = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)], float)
-    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
-    floor = (np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    faces = np.array(
+        [
+            [0, 1, 3],
+            [0, 3, 2],
+            [4, 6, 7],
+            [4, 7, 5],
+            [0, 4, 5],
+            [0, 5, 1],
+            [2, 3, 7],
+            [2, 7, 6],
+            [0, 2, 6],
+            [0, 6, 4],
+            [1, 5, 7],
+            [1, 7, 3],
+        ]
+    )
+    floor = (
+        np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]], float),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
     count = len(starts)
     meshes = [floor] + [(cube, faces)] * count
     static = np.array([True] + [False] * count)
@@ -125,6 +142,8 @@ def test_the_threshold_is_a_froude_number():
     from fignetctl.core.model.rollout import Sleepers
 
     big_scene, tiny_scene = cube_scene([[0, 0, 0.5]], [[0, 0, 0]]), cube_scene([[0, 0, 0.5]], [[0, 0, 0]])
-    tiny_geometry = dataclasses.replace(tiny_scene.geometry, rest_vertices=tiny_scene.geometry.rest_vertices * 0.01)
+    tiny_geometry = dataclasses.replace(
+        tiny_scene.geometry, rest_vertices=tiny_scene.geometry.rest_vertices * 0.01
+    )
     big, tiny = Sleepers(big_scene.geometry, small, 0.2), Sleepers(tiny_geometry, small, 0.2)
     np.testing.assert_allclose(big.threshold[1] / tiny.threshold[1], np.sqrt(100.0))

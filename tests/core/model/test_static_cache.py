@@ -22,7 +22,12 @@ def ground_box_and_sphere():
     dynamic box (2) and sphere (3) near both."""
     ground = trimesh.creation.box(extents=[4.0, 4.0, 0.1]).subdivide().subdivide().subdivide()
     ground.vertices[:, 2] -= 0.05
-    meshes = [ground, trimesh.creation.box(extents=[0.4, 0.4, 0.4]), trimesh.creation.box(), trimesh.creation.icosphere(1)]
+    meshes = [
+        ground,
+        trimesh.creation.box(extents=[0.4, 0.4, 0.4]),
+        trimesh.creation.box(),
+        trimesh.creation.icosphere(1),
+    ]
     geometry = scene_geometry(
         [(m.vertices, m.faces) for m in meshes], [1, 1, 0.5, 0.3], [True, True, False, False], np.ones((4, 3))
     )
@@ -50,7 +55,9 @@ def test_cached_pairs_equal_the_uncached_and_brute_force_pairs_as_a_static_objec
     for frame in range(5):
         positions[frame, 1] += [0.0, 0.02 * frame, 0.0]  # the static box has given motion
         dynamic_now = geometry.world_vertices(positions[frame], quaternions[frame], geometry.dynamic_vertices)
-        found = collision_face_pairs_from_poses(geometry, dynamic_now, positions[frame], quaternions[frame], 0.1)
+        found = collision_face_pairs_from_poses(
+            geometry, dynamic_now, positions[frame], quaternions[frame], 0.1
+        )
         vertices = geometry.world_vertices(positions[frame], quaternions[frame])
         uncached = collision_face_pairs(geometry, vertices, 0.1)
         triangles = vertices[geometry.faces]
@@ -89,7 +96,9 @@ def test_graph_is_the_same_with_a_cold_cache_a_warm_one_and_a_moved_static_objec
 
 def test_fignet_surface_edges_are_those_between_graph_nodes():
     geometry, positions, quaternions = ground_box_and_sphere()
-    scene_graph = build_scene_graph(geometry, positions[:3], quaternions[:3], GraphConfig(0.15, surface_edges=True))
+    scene_graph = build_scene_graph(
+        geometry, positions[:3], quaternions[:3], GraphConfig(0.15, surface_edges=True)
+    )
     in_graph = np.zeros(len(geometry.rest_vertices), bool)
     in_graph[scene_graph.node_vertex[scene_graph.node_vertex >= 0]] = True
     expected = geometry.surface_edges[in_graph[geometry.surface_edges].all(axis=1)]
@@ -105,6 +114,8 @@ def test_a_scene_with_nothing_near_the_environment_has_no_static_nodes():
     geometry, positions, quaternions = ground_box_and_sphere()
     positions[:, 2:, 2] += 3.0
     scene_graph = build_scene_graph(geometry, positions[:3], quaternions[:3], GraphConfig(0.2))
-    assert not geometry.static[geometry.vertex_object[scene_graph.node_vertex[scene_graph.node_vertex >= 0]]].any()
+    assert not geometry.static[
+        geometry.vertex_object[scene_graph.node_vertex[scene_graph.node_vertex >= 0]]
+    ].any()
     assert scene_graph.graph.num_nodes == len(geometry.dynamic_vertices) + 2
     assert scene_graph.node_positions.shape == (3, scene_graph.graph.num_nodes, 3)

@@ -27,7 +27,13 @@ def _config(**changes):
 
 
 def test_tiny_model_overfits_one_trajectory(box_file):
-    trainer = make_trainer(box_file, TINY, _config(steps=300, noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20))
+    trainer = make_trainer(
+        box_file,
+        TINY,
+        _config(
+            steps=300, noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20
+        ),
+    )
     trainer.run()
     losses = [h["loss"] for h in trainer.history]
     assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 10
@@ -50,7 +56,9 @@ def test_checkpoint_round_trip_keeps_predictions(box_file, tmp_path):
     trainer.run()
     save_checkpoint(tmp_path / "m.pt", trainer.simulator)
     loaded = load_checkpoint(tmp_path / "m.pt")
-    assert loaded.config == dataclasses.replace(TINY, dt=pytest.approx(1 / 60), gravity=(0.0, 0.0, -10.0))  # the data's, recorded
+    assert loaded.config == dataclasses.replace(
+        TINY, dt=pytest.approx(1 / 60), gravity=(0.0, 0.0, -10.0)
+    )  # the data's, recorded
     scene = trainer.scenes[0]
     first = rollout(trainer.simulator.eval(), scene, 3)
     second = rollout(loaded, scene, 3)
@@ -133,7 +141,17 @@ def test_huber_loss_is_quadratic_near_zero_and_linear_for_spikes():
 
 
 def test_tiny_model_overfits_with_the_huber_loss(box_file):
-    trainer = make_trainer(box_file, TINY, _config(steps=300, loss="huber", noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20))
+    trainer = make_trainer(
+        box_file,
+        TINY,
+        _config(
+            steps=300,
+            loss="huber",
+            noise_translation_std=0.0,
+            noise_rotation_std=0.0,
+            normalizer_accumulation_steps=20,
+        ),
+    )
     trainer.run()
     losses = [h["loss"] for h in trainer.history]
     assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 10
@@ -152,8 +170,12 @@ def test_the_target_undoes_velocity_noise_only_when_it_keeps_the_noise(tmp_path,
     config = _config(target_keeps_noise=keeps_noise, noise_translation_std=0.01, noise_rotation_std=0.01)
     trainer = make_trainer(path, TINY, config)
     scene = trainer.scenes[0]
-    scene_graph, target = training_example(trainer.simulator.config, scene, 1, torch.Generator().manual_seed(0), config)
-    clean = scene.geometry.world_vertices(scene.positions[1], scene.quaternions[1], scene.geometry.dynamic_vertices)
+    scene_graph, target = training_example(
+        trainer.simulator.config, scene, 1, torch.Generator().manual_seed(0), config
+    )
+    clean = scene.geometry.world_vertices(
+        scene.positions[1], scene.quaternions[1], scene.geometry.dynamic_vertices
+    )
     jitter = scene_graph.dynamic_vertex_positions[1] - clean
     assert np.abs(jitter).max() > 1e-3
     np.testing.assert_allclose(target.numpy(), -factor * jitter, atol=1e-6)
@@ -162,7 +184,12 @@ def test_the_target_undoes_velocity_noise_only_when_it_keeps_the_noise(tmp_path,
 def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
     first = make_trainer(box_file, TINY, _config())
     first.run(tmp_path / "first.pt")
-    tuned = make_trainer(box_file, dataclasses.replace(TINY, graph=GraphConfig(0.1, False, speculative=True)), _config(), init_from=tmp_path / "first.pt")
+    tuned = make_trainer(
+        box_file,
+        dataclasses.replace(TINY, graph=GraphConfig(0.1, False, speculative=True)),
+        _config(),
+        init_from=tmp_path / "first.pt",
+    )
     assert tuned.step == 0 and tuned.simulator.config.graph.speculative
     for name, value in first.simulator.state_dict().items():
         torch.testing.assert_close(tuned.simulator.state_dict()[name], value, rtol=0, atol=0)

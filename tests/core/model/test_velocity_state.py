@@ -27,7 +27,9 @@ from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
 
 VELOCITY_TINY = dataclasses.replace(
-    simulator_config_for("fignet-star", "tiny", 0.1, state="velocities", static_receivers=False), dt=1 / 60, gravity=(0.0, 0.0, -10.0)
+    simulator_config_for("fignet-star", "tiny", 0.1, state="velocities", static_receivers=False),
+    dt=1 / 60,
+    gravity=(0.0, 0.0, -10.0),
 )
 
 
@@ -50,17 +52,27 @@ def test_version_2_round_trip_keeps_velocities_and_version_1_reads_without(tmp_p
     with h5py.File(path, "r") as f:
         assert f.attrs["format_version"] == 2
     plain = dataclasses.replace(box_drop.trajectories["00000"], velocities=None, angular_velocities=None)
-    path = write_trajectories(tmp_path / "plain.h5", dataclasses.replace(box_drop, trajectories={"00000": plain}))
+    path = write_trajectories(
+        tmp_path / "plain.h5", dataclasses.replace(box_drop, trajectories={"00000": plain})
+    )
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 1
     assert not read_trajectories(path).trajectories["00000"].has_velocities
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda t: dataclasses.replace(t, angular_velocities=None), "give both or neither"),
-    (lambda t: dataclasses.replace(t, velocities=t.velocities[:2]), "must be float"),
-    (lambda t: dataclasses.replace(t, velocities=np.where(np.arange(3)[:, None, None] == 2, np.nan, t.velocities)), "not finite at frame 2"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda t: dataclasses.replace(t, angular_velocities=None), "give both or neither"),
+        (lambda t: dataclasses.replace(t, velocities=t.velocities[:2]), "must be float"),
+        (
+            lambda t: dataclasses.replace(
+                t, velocities=np.where(np.arange(3)[:, None, None] == 2, np.nan, t.velocities)
+            ),
+            "not finite at frame 2",
+        ),
+    ],
+)
 def test_damaged_velocities_are_refused(tmp_path, box_drop, change, message):
     broken = change(box_drop.trajectories["00000"])
     with pytest.raises(FormatError, match=message):
@@ -81,7 +93,9 @@ def test_estimated_velocities_are_exact_for_constant_velocity_and_spin():
 def test_rotation_vector_round_trip():
     vectors = np.random.default_rng(0).normal(size=(50, 3))
     vectors *= np.minimum(1.0, 3.0 / np.linalg.norm(vectors, axis=1))[:, None]  # inside the short way round
-    np.testing.assert_allclose(quat_to_rotation_vector(quat_from_rotation_vector(vectors)), vectors, atol=1e-12)
+    np.testing.assert_allclose(
+        quat_to_rotation_vector(quat_from_rotation_vector(vectors)), vectors, atol=1e-12
+    )
 
 
 def test_targets_and_integration_are_exact_inverses():
@@ -141,13 +155,19 @@ def test_the_graphs_velocity_feature_is_the_instantaneous_velocity():
     velocities = (scene.velocities[1] * dt, scene.angular_velocities[1] * dt)
     graph = build_scene_graph(geometry, scene.positions, scene.quaternions, GraphConfig(0.1), velocities)
     vertices = geometry.world_vertices(scene.positions[1], scene.quaternions[1], geometry.dynamic_vertices)
-    expected = rigid_point_velocities(vertices, geometry.vertex_object[geometry.dynamic_vertices], scene.positions[1], *velocities)
+    expected = rigid_point_velocities(
+        vertices, geometry.vertex_object[geometry.dynamic_vertices], scene.positions[1], *velocities
+    )
     features = graph.graph.node_features.numpy()
     np.testing.assert_allclose(features[: len(expected), :3], expected, atol=1e-6)
     object_node = graph.graph.num_nodes - 1
     np.testing.assert_allclose(features[object_node, :3], velocities[0][1], atol=1e-6)
-    finite_difference = build_scene_graph(geometry, scene.positions, scene.quaternions, GraphConfig(0.1)).graph.node_features.numpy()
-    assert np.abs(finite_difference[: len(expected), :3] - expected).max() > 1e-3  # the falling box: they differ by g·dt/2
+    finite_difference = build_scene_graph(
+        geometry, scene.positions, scene.quaternions, GraphConfig(0.1)
+    ).graph.node_features.numpy()
+    assert (
+        np.abs(finite_difference[: len(expected), :3] - expected).max() > 1e-3
+    )  # the falling box: they differ by g·dt/2
 
 
 def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
@@ -155,13 +175,27 @@ def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
     simulator = LearnedSimulator(VELOCITY_TINY).eval()
     scene = scene_from_trajectory(box_drop_file(frames=3, height=0.6), "00000", SimulatorConfig())
     velocities = (scene.velocities[1], scene.angular_velocities[1])
-    simulator.inverse_postprocess(np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True)
-    build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph)  # warm the caches alike
-    simulator(build_scene_graph(scene.geometry, scene.positions, scene.quaternions, simulator.config.graph,
-                                tuple(v * scene.dt for v in velocities)).graph, accumulate=True)
+    simulator.inverse_postprocess(
+        np.ones((4, 3)), np.zeros((4, 3)), np.ones((4, 3)), np.ones((4, 3)), accumulate=True
+    )
+    build_scene_graph(
+        scene.geometry, scene.positions, scene.quaternions, simulator.config.graph
+    )  # warm the caches alike
+    simulator(
+        build_scene_graph(
+            scene.geometry,
+            scene.positions,
+            scene.quaternions,
+            simulator.config.graph,
+            tuple(v * scene.dt for v in velocities),
+        ).graph,
+        accumulate=True,
+    )
     first = simulator.predict(scene.geometry, scene.positions, scene.quaternions, velocities=velocities)
     shift = np.array([1000.0, -2000.0, 0.0])
-    moved = simulator.predict(scene.geometry, scene.positions + shift, scene.quaternions, velocities=velocities)
+    moved = simulator.predict(
+        scene.geometry, scene.positions + shift, scene.quaternions, velocities=velocities
+    )
     np.testing.assert_allclose(moved[0] - shift, first[0], atol=1e-6)
     np.testing.assert_allclose(moved[2], first[2], atol=1e-6)
     np.testing.assert_allclose(moved[3], first[3], atol=1e-6)
@@ -169,14 +203,22 @@ def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
 
 def test_a_velocity_model_learns_free_fall_and_its_rollout_carries_velocities(tmp_path):
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=30, height=8.0))
-    config = TrainingConfig(steps=300, batch_size=2, noise_translation_std=0.0, noise_rotation_std=0.0, normalizer_accumulation_steps=20)
+    config = TrainingConfig(
+        steps=300,
+        batch_size=2,
+        noise_translation_std=0.0,
+        noise_rotation_std=0.0,
+        normalizer_accumulation_steps=20,
+    )
     trainer = make_trainer(path, VELOCITY_TINY, config)
     trainer.run()
     simulator = trainer.simulator.eval()
     scene = trainer.scenes[0]
     positions, quaternions, velocities, angular = rollout(simulator, scene, 20, with_velocities=True)
     assert velocities.shape == angular.shape == (22, 2, 3)
-    np.testing.assert_allclose(positions[:, 1], scene.positions[:22, 1], atol=0.02)  # the exact fall, 6.7 m of it
+    np.testing.assert_allclose(
+        positions[:, 1], scene.positions[:22, 1], atol=0.02
+    )  # the exact fall, 6.7 m of it
     np.testing.assert_allclose(velocities[:, 1], scene.velocities[:22, 1], atol=0.15)  # 6.3 m/s at the end
     np.testing.assert_allclose(angular[:, 1], scene.angular_velocities[:22, 1], atol=0.15)
 
@@ -198,7 +240,9 @@ def test_each_process_of_a_data_parallel_run_draws_its_own_batches(tmp_path):
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=40))
     scenes = make_trainer(path, VELOCITY_TINY, TrainingConfig(steps=1)).scenes
     config = TrainingConfig(steps=2, batch_size=1)
-    first, again, other = (TrainingBatches(scenes, VELOCITY_TINY, config, rank)[1]["targets"] for rank in (0, 0, 1))
+    first, again, other = (
+        TrainingBatches(scenes, VELOCITY_TINY, config, rank)[1]["targets"] for rank in (0, 0, 1)
+    )
     torch.testing.assert_close(first, again, rtol=0, atol=0)
     assert not torch.equal(first, other)
 
@@ -236,7 +280,9 @@ def velocity_model(tmp_path_factory):
 
 
 @pytest.mark.parametrize("scale", [1.0, 4.0])
-def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated_size(velocity_model, tmp_path, scale):
+def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated_size(
+    velocity_model, tmp_path, scale
+):
     from fignetctl.core.model.checkpoint import load_checkpoint
     from fignetctl.core.model.runs import rollout_file
 
@@ -244,13 +290,23 @@ def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated
     result = rollout_file(load_checkpoint(model), data, None, 12, sim_scale=scale, free_flight=True)
     assert result.dt == pytest.approx((1 / 60) / scale**0.5)
     box = result.trajectories["00000"]
-    times = 1 / 60 + np.arange(-1, 13) * result.dt  # frame 1 is at 1/60 s; frame 0 re-timed to one step before
-    np.testing.assert_allclose(box.positions[1:, 1, 2], 20.0 - 5.0 * times[1:] ** 2, atol=1e-4)  # free flight, exact
+    times = (
+        1 / 60 + np.arange(-1, 13) * result.dt
+    )  # frame 1 is at 1/60 s; frame 0 re-timed to one step before
+    np.testing.assert_allclose(
+        box.positions[1:, 1, 2], 20.0 - 5.0 * times[1:] ** 2, atol=1e-4
+    )  # free flight, exact
     np.testing.assert_allclose(box.velocities[1:, 1, 2], -10.0 * times[1:], atol=1e-4)
-    np.testing.assert_allclose(box.angular_velocities[1:, 1], np.tile(box_drop_file().trajectories["00000"].angular_velocities[0, 1], (13, 1)), atol=1e-5)
+    np.testing.assert_allclose(
+        box.angular_velocities[1:, 1],
+        np.tile(box_drop_file().trajectories["00000"].angular_velocities[0, 1], (13, 1)),
+        atol=1e-5,
+    )
 
 
-def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refuses_another(velocity_model, tmp_path):
+def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refuses_another(
+    velocity_model, tmp_path
+):
     from fignetctl.core.model.checkpoint import load_checkpoint
     from fignetctl.core.model.runs import rollout_file
 
@@ -259,6 +315,8 @@ def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refus
     result = rollout_file(load_checkpoint(model), at_30_fps, None, 4, free_flight=True)
     assert result.dt == pytest.approx(1 / 60)
     positions_model = load_checkpoint(model)
-    positions_model.config = dataclasses.replace(positions_model.config, state="positions", network=PRESETS["tiny"])
+    positions_model.config = dataclasses.replace(
+        positions_model.config, state="positions", network=PRESETS["tiny"]
+    )
     with pytest.raises(FignetError, match="give the scene at dt = 0.0166667"):
         rollout_file(positions_model, at_30_fps, None, 4)

@@ -27,7 +27,6 @@ import gc
 import json
 import os
 import platform
-import statistics
 import time
 import tracemalloc
 from pathlib import Path

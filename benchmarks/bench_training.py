@@ -123,7 +123,7 @@ def main() -> None:
         name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline}
         for name, r in rates.items()
     }
-    print(f"\n| setting | samples/s | × serial |\n|---|---|---|")
+    print("\n| setting | samples/s | × serial |\n|---|---|---|")
     for name, row in rows.items():
         print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |")
     if args.output:

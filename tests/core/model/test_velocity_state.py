@@ -22,7 +22,7 @@ from fignetctl.core.model.simulator import (
 )
 from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
 from fignetctl.core.trajectory import estimated_velocities, read_trajectories, write_trajectories
-from fignetctl.core.transforms import quat_from_rotation_vector, quat_multiply, quat_to_rotation_vector
+from fignetctl.core.transforms import quat_from_rotation_vector, quat_to_rotation_vector
 from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
 

@@ -89,11 +89,14 @@ $(DATA)/%-movi-b-velocities.pt: $(DATA)/movi-b-train-4k.h5
 velocity-checkpoints: $(DATA)/fignet-star-movi-b-velocities.pt $(DATA)/fignet-movi-b-velocities.pt
 
 # The velocity-state FIGNet* on the held-out set, beside its guards, the baselines and the
-# PyBullet ceilings, and the plot of both FIGNet*s' curves (docs/simulator.md).
+# PyBullet ceilings; the plot of both FIGNet*s' curves; 120 steps of the network alone on 10
+# trajectories, for how deep objects go into the floor (docs/simulator.md).
 evaluate-velocity-checkpoint: $(DATA)/movi-b-test.h5 $(DATA)/fignet-star-movi-b-velocities.pt
 	$(BIN)/fignetctl evaluate $< --model $(DATA)/fignet-star-movi-b-velocities.pt --with-guards --ceilings -o docs/results/fignet-star-velocities-movi-b-test.json --overwrite
 	$(BIN)/python benchmarks/error_curves.py docs/results/fignet-star-velocities-movi-b-test.json="FIGNet*, velocity state" \
 	    docs/results/fignet-star-movi-b-test.json="FIGNet* bundled, two frames" --plot docs/images/error-curves-movi-b.png
+	$(BIN)/python benchmarks/long_rollout.py --model $(DATA)/fignet-star-movi-b-velocities.pt --data $< -n 10 --steps 120 \
+	    --out docs/results/long-rollout-network-alone-velocities.json
 
 checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt

@@ -26,8 +26,8 @@ import numpy as np
 from fignetctl.core import rerender
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.nerf import load_nerf
-from fignetctl.core.transforms import quat_from_axis_angle
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
+from fignetctl.core.transforms import quat_from_axis_angle
 from fignetctl.core.volume import Volume, write_volume
 
 DEFAULT_OUT = Path(__file__).parent / "results" / "rerender.json"

@@ -53,7 +53,7 @@ def show(path, trajectory_id, json_path, video_path, png_path, frame, rerun_path
     """
     import json
 
-    from fignetctl.core import inspect, viz
+    from fignetctl.core import trajectory_summary, viz
     from fignetctl.core.atomic import atomic_path
     from fignetctl.core.trajectory import read_trajectories
 
@@ -61,8 +61,8 @@ def show(path, trajectory_id, json_path, video_path, png_path, frame, rerun_path
     outputs = {flag: options.output_path(p, overwrite, flag) for flag, p in flags.items() if p}
     data = read_trajectories(path)
     key = _trajectory_key(data, trajectory_id)
-    summary = {"file": str(path), **inspect.summarize(data)}
-    click.echo(inspect.format_summary(summary), nl=False)
+    summary = {"file": str(path), **trajectory_summary.summarize(data)}
+    click.echo(trajectory_summary.format_summary(summary), nl=False)
     if "--json" in outputs:
         with atomic_path(outputs["--json"]) as tmp:
             tmp.write_text(json.dumps(summary, indent=1) + "\n")

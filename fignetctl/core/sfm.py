@@ -314,7 +314,6 @@ def log_cameras_to_rerun(path_rrd, cameras: Cameras, image_dir=None, entity_root
     """Write the cameras (frusta, with their images when `image_dir` is given) and the sparse
     points to a rerun recording (.rrd), atomically. World: z up."""
     from fignetctl.core.atomic import atomic_path
-
     from fignetctl.core.viz import import_rerun, recording_stream
 
     rr = import_rerun()

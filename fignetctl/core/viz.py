@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.inspect import energies, lowest_vertex_heights
-from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.core.trajectory import Trajectory, TrajectoryFile
+from fignetctl.core.trajectory_summary import energies, lowest_vertex_heights
+from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.errors import FignetError
 
 # Tableau-like palette, RGB; dynamic objects take these in turn, static ones are grey.
@@ -521,7 +521,6 @@ def log_trajectory_to_rerun(
     Open it with `rerun FILE.rrd`: the meshes move on the "frame" and "time" timelines,
     with energy plots beside them.
     """
-    rr = import_rerun()
     _get_trajectory(data, trajectory_id)
     path_rrd = Path(path_rrd)
     with atomic_path(path_rrd, suffix=".rrd") as tmp:

@@ -3,10 +3,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from fignetctl.core.cameras import look_at_c2w
 from fignetctl.cli import cli
 from fignetctl.core import rerender
-from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.cameras import Cameras, look_at_c2w, write_cameras
 from fignetctl.core.media import read_video_info
 from fignetctl.core.nerf import save_nerf
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories

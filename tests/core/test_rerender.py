@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.cameras import look_at_c2w
 from fignetctl.core import rerender
+from fignetctl.core.cameras import look_at_c2w
 from fignetctl.core.nerf import NerfConfig, NerfModel
 from fignetctl.core.transforms import quat_from_axis_angle
 from fignetctl.core.volume import Volume

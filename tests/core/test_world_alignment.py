@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from fignetctl.core import world_alignment as wa
+from fignetctl.core.cameras import Cameras
 from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.errors import FignetError
 from tests.core.synthetic_views import ring_cameras
-from fignetctl.core.cameras import Cameras
 
 
 def random_rotation(rng):

@@ -4,7 +4,7 @@ Layout of the torch file (loaded with `weights_only=True`, so nothing is unpickl
 tensors and plain values):
 
     format="fignetctl.model", format_version=1, fignetctl_version, simulator_config (json),
-    model (state_dict), trained_properties (json, optional: properties.py), training_state
+    model (state_dict), trained_properties (json, optional: trained_ranges.py), training_state
     (optional: step, optimizer, random states, history, training_config json, data_hash)
 
 Writes are atomic. A file that is not a fignetctl model, a newer format, or weights that do
@@ -23,7 +23,7 @@ import torch
 from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
-from fignetctl.core.model.properties import ranges_from_json
+from fignetctl.core.model.trained_ranges import ranges_from_json
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -112,7 +112,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     file of a run saved before models stored `trained_properties`, adds them (its hash must
     be the run's).
     """
-    from fignetctl.core.model.properties import property_ranges, ranges_to_json, trajectory_largest_sides
+    from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json, trajectory_largest_sides
     from fignetctl.core.provenance import file_sha256
     from fignetctl.core.trajectory import read_trajectories
 

@@ -10,9 +10,9 @@ import logging
 import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
-from fignetctl.core.model.properties import outside_ranges
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
+from fignetctl.core.model.trained_ranges import outside_ranges
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
 
@@ -69,9 +69,9 @@ def rollout_file(
 ) -> TrajectoryFile:
     """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
 
-    sim_scale : simulate the scene scaled by this factor (or "auto": similarity.auto_scale with
+    sim_scale : simulate the scene scaled by this factor (or "auto": froude.auto_scale with
         the model's trained_properties) and map the frames back; the result's frame time is then dt / √sim_scale
-        (fignetctl.core.model.similarity)
+        (fignetctl.core.model.froude)
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
     keep_out : objects are moved back out of static meshes they pass into (penetration.py)
@@ -79,7 +79,7 @@ def rollout_file(
     The result holds the model's time step (`simulation_time_step`, over √sim_scale), and the
     velocities of a velocity-state model.
     """
-    from fignetctl.core.model import similarity
+    from fignetctl.core.model import froude
 
     data = read_trajectories(scene_path, None if trajectory_id is None else [trajectory_id])
     key = next(iter(data.trajectories))
@@ -87,17 +87,17 @@ def rollout_file(
         raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
     step_dt = simulation_time_step(simulator, data, key, scene_path)
     trained = getattr(simulator, "trained_properties", None)
-    scale = similarity.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
+    scale = froude.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
     simulated = data
     if scale != 1.0:
-        simulated, history = similarity.scaled_scene(data, key, scale)
+        simulated, history = froude.scaled_scene(data, key, scale)
     scene = scene_from_trajectory(simulated, key, simulator.config)
     warn_untrained_properties(simulator, [data.trajectories[key]])
     guards = guards_for(step_dt, data.gravity, sleep, free_flight, keep_out)
 
     def result(frames):
         if scale != 1.0:
-            frames = similarity.unscaled_frames(frames, history, scale)
+            frames = froude.unscaled_frames(frames, history, scale)
         return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
 
     try:

@@ -147,7 +147,7 @@ class LearnedSimulator(nn.Module):
             }
         )
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
-        self.trained_properties = None  # ranges of the training data's properties (properties.py)
+        self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
         """Raw graph -> normalised graph (statistics updated when `accumulate`)."""

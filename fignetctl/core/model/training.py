@@ -29,10 +29,10 @@ from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
-from fignetctl.core.model.properties import largest_sides, property_ranges, ranges_to_json
-from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
+from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
 from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.errors import FignetError

@@ -5,11 +5,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fignetctl.core.model import similarity
+from fignetctl.core.model import froude
 from fignetctl.core.model.runs import rollout_file
 from fignetctl.core.model.simulator import SimulatorConfig, free_flight_poses
-from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
+from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply
 from fignetctl.errors import FignetError
 from tests.conftest import box_drop_file
 
@@ -82,28 +82,28 @@ def test_auto_brings_the_largest_moving_object_to_the_training_size(tmp_path):
     small_throw(tmp_path / "throw.h5", size=0.12)
     simulator = BallisticSimulator(1 / 30)
     result = rollout_file(simulator, tmp_path / "throw.h5", None, 3, sim_scale="auto")
-    assert simulator.sides[0] == pytest.approx(similarity.TRAINING_OBJECT_SIDE, rel=1e-6)
-    assert result.attrs["sim_scale"] == pytest.approx(similarity.TRAINING_OBJECT_SIDE / 0.12)
+    assert simulator.sides[0] == pytest.approx(froude.TRAINING_OBJECT_SIDE, rel=1e-6)
+    assert result.attrs["sim_scale"] == pytest.approx(froude.TRAINING_OBJECT_SIDE / 0.12)
 
 
 def test_auto_leaves_a_scene_of_the_training_size_as_it_is(tmp_path):
-    low, high = similarity.TRAINING_SIDE_RANGE  # the box's side is its scale
+    low, high = froude.TRAINING_SIDE_RANGE  # the box's side is its scale
     inside, outside = (low + 0.01, high - 0.01, 2.0), (low - 0.01, high + 0.01, 0.12)
     for size, expected in [(s, 1.0) for s in inside] + [
-        (s, similarity.TRAINING_OBJECT_SIDE / s) for s in outside
+        (s, froude.TRAINING_OBJECT_SIDE / s) for s in outside
     ]:
         small_throw(tmp_path / f"throw-{size}.h5", size=size)
         data = read_trajectories(tmp_path / f"throw-{size}.h5")
-        assert similarity.auto_scale(data, "00000") == pytest.approx(expected, rel=1e-6)
+        assert froude.auto_scale(data, "00000") == pytest.approx(expected, rel=1e-6)
 
 
 def test_auto_uses_the_sizes_a_model_file_records(tmp_path):
     small_throw(tmp_path / "throw.h5", size=0.12)
     data = read_trajectories(tmp_path / "throw.h5")
     trained = {"dynamic": {"mass": [1, 1], "largest_side": [0.1, 0.15, 0.2]}}
-    assert similarity.auto_scale(data, "00000", trained) == 1.0
+    assert froude.auto_scale(data, "00000", trained) == 1.0
     trained["dynamic"]["largest_side"] = [0.5, 0.6, 0.8]
-    assert similarity.auto_scale(data, "00000", trained) == pytest.approx(0.6 / 0.12)
+    assert froude.auto_scale(data, "00000", trained) == pytest.approx(0.6 / 0.12)
 
 
 def test_the_rollout_command_scales_a_small_scene_by_default_and_says_so(tmp_path):
@@ -116,9 +116,9 @@ def test_the_rollout_command_scales_a_small_scene_by_default_and_says_so(tmp_pat
         cli, ["rollout", str(tmp_path / "throw.h5"), "--steps", "2", "-o", str(tmp_path / "r.h5")]
     )
     assert result.exit_code == 0, result.output
-    assert f"simulated at {similarity.TRAINING_OBJECT_SIDE / 0.12:.4g}x its size" in result.output
+    assert f"simulated at {froude.TRAINING_OBJECT_SIDE / 0.12:.4g}x its size" in result.output
     assert read_trajectories(tmp_path / "r.h5").attrs["sim_scale"] == pytest.approx(
-        similarity.TRAINING_OBJECT_SIDE / 0.12
+        froude.TRAINING_OBJECT_SIDE / 0.12
     )
 
 
@@ -131,7 +131,7 @@ def test_a_moving_static_object_cannot_be_rescaled(tmp_path):
         data, trajectories={"00000": dataclasses.replace(trajectory, positions=positions)}
     )
     with pytest.raises(FignetError, match="static object 0 moves"):
-        similarity.scaled_scene(data, "00000", 4.0)
+        froude.scaled_scene(data, "00000", 4.0)
 
 
 def test_the_rollout_command_takes_auto_and_refuses_nonsense(tmp_path):

@@ -2,7 +2,12 @@
 
 import numpy as np
 
-from fignetctl.core.model.properties import outside_ranges, property_ranges, ranges_from_json, ranges_to_json
+from fignetctl.core.model.trained_ranges import (
+    outside_ranges,
+    property_ranges,
+    ranges_from_json,
+    ranges_to_json,
+)
 
 
 def scene(friction, restitution, mass=1.0):

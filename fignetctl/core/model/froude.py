@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from fignetctl.core.model.properties import trajectory_largest_sides
+from fignetctl.core.model.trained_ranges import trajectory_largest_sides
 from fignetctl.core.transforms import (
     quat_angle_deg,
     quat_conjugate,
@@ -49,7 +49,7 @@ def largest_dynamic_side(data, key) -> float:
 def auto_scale(data, key, trained_properties=None) -> float:
     """1 for a scene whose largest dynamic object is of a size the model trained on, else the
     scale that brings it to the training objects' median size. The sizes are the model's
-    `trained_properties` largest_side (properties.py) where it records them, else the bundled
+    `trained_properties` largest_side (trained_ranges.py) where it records them, else the bundled
     models' (TRAINING_SIDE_RANGE, TRAINING_OBJECT_SIDE)."""
     side = largest_dynamic_side(data, key)
     known = (trained_properties or {}).get("dynamic", {}).get("largest_side")

@@ -16,7 +16,7 @@ a resting cube of friction 0.5 and restitution 0.5 slid 13 cm in 30 steps; of MO
      "static": {"friction": [lo, hi], "restitution": [lo, hi], "materials": [...]}}
 
 `largest_side` (metres, each moving object's largest bounding-box side in its own frame) tells
-`rollout --sim-scale auto` which sizes the model knows (similarity.py); files without it are
+`rollout --sim-scale auto` which sizes the model knows (froude.py); files without it are
 taken to know the bundled models' movi-b sizes.
 
 `materials` lists the distinct (friction, restitution) pairs when there are at most

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from fignetctl.core.inspect import angular_velocities, energies, lowest_vertex_heights, summarize
+from fignetctl.core.trajectory_summary import angular_velocities, energies, lowest_vertex_heights, summarize
 from tests.conftest import box_drop_file
 
 
@@ -64,7 +64,7 @@ def test_spinning_cuboid_in_free_flight_has_the_analytic_rotational_energy():
 def test_mesh_inertia_matches_trimesh_with_the_same_mass():
     import trimesh
 
-    from fignetctl.core.inspect import mesh_inertia
+    from fignetctl.core.trajectory_summary import mesh_inertia
 
     mesh = trimesh.creation.cone(radius=0.7, height=1.3)
     mesh.apply_translation(-mesh.center_mass)
@@ -80,7 +80,7 @@ def test_mesh_inertia_matches_trimesh_with_the_same_mass():
 
 
 def test_flat_mesh_inertia_is_finite():
-    from fignetctl.core.inspect import mesh_inertia
+    from fignetctl.core.trajectory_summary import mesh_inertia
 
     square = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     inertia = mesh_inertia(square, np.array([[0, 1, 2], [0, 2, 3]]), 1.0, 2.0)
@@ -90,7 +90,7 @@ def test_flat_mesh_inertia_is_finite():
 
 
 def test_world_vertices_follow_the_pose_and_give_the_lowest_height():
-    from fignetctl.core.inspect import world_vertices
+    from fignetctl.core.trajectory_summary import world_vertices
 
     data = box_drop_file(frames=4, spin=3.0)
     trajectory = data.trajectories["00000"]
@@ -105,7 +105,7 @@ def test_world_vertices_follow_the_pose_and_give_the_lowest_height():
 def test_summary_is_json_ready_and_the_text_lists_every_object():
     import json
 
-    from fignetctl.core.inspect import format_summary
+    from fignetctl.core.trajectory_summary import format_summary
 
     summary = summarize(box_drop_file(frames=6, height=1.5))
     trajectory = json.loads(json.dumps(summary))["per_trajectory"][0]

@@ -1,4 +1,4 @@
-"""Benchmark of `fignetctl capture-poses` on the bundled capture (fignetctl.core.capture).
+"""Benchmark of `fignetctl capture-poses` on the bundled capture (fignetctl.core.synthetic_capture).
 
 Renders the capture at its defaults (or reuses --capture DIR), runs capture-poses on its
 still images and on its video (through the CLI, as a user would), and compares the result
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core import capture as capture_module
+from fignetctl.core import synthetic_capture as capture_module
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.world_alignment import umeyama
 
@@ -126,7 +126,7 @@ def bench_images(
 def bench_video(
     capture: Path, work: Path, scene: dict, scene_size: float, height: float, every: int, matcher: str
 ) -> dict:
-    from fignetctl.core.capture import CaptureSettings, orbit_cameras
+    from fignetctl.core.synthetic_capture import CaptureSettings, orbit_cameras
 
     settings = scene["settings"]
     config = CaptureSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
@@ -163,7 +163,7 @@ def bench_video(
 
 
 def config_focal(config) -> float:
-    from fignetctl.core.capture import intrinsics
+    from fignetctl.core.synthetic_capture import intrinsics
 
     return float(intrinsics(config)[0, 0])
 
@@ -233,7 +233,7 @@ def main():
         capture = args.capture
         render_seconds = None
         if capture is None:
-            from fignetctl.core.capture import render_capture
+            from fignetctl.core.synthetic_capture import render_capture
 
             capture = tmp / "capture"
             start = time.perf_counter()

@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def capture_folder(path):
     if path is not None:
         return Path(path)
-    from fignetctl.core.capture import render_capture
+    from fignetctl.core.synthetic_capture import render_capture
 
     folder = Path(tempfile.mkdtemp(prefix="bench-nerf-")) / "capture"
     render_capture(folder, video=False)

@@ -49,7 +49,7 @@ def render_views(output, views, width, height, num_objects, video_step, seed, no
       fignetctl render-views -o capture --views 40 --width 320 --height 240 --seed 0
       fignetctl render-views -o tiny --views 8 --width 80 --height 60 --no-video
     """
-    from fignetctl.core.capture import render_capture
+    from fignetctl.core.synthetic_capture import render_capture
 
     path = options.output_path(output, overwrite)
     summary = render_capture(

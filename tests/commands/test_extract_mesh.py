@@ -15,7 +15,7 @@ BOUNDS = np.array([[-0.35, -0.35, -0.04], [0.35, 0.35, 0.2]])
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.capture import PRESETS, render_capture
+    from fignetctl.core.synthetic_capture import PRESETS, render_capture
 
     folder = tmp_path_factory.mktemp("capture") / "capture"
     render_capture(folder, **{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)

@@ -1,11 +1,11 @@
-"""The bundled capture (`fignetctl.core.capture`) on tiny renders: files, geometry, prompts."""
+"""The bundled capture (`fignetctl.core.synthetic_capture`) on tiny renders: files, geometry, prompts."""
 
 import json
 
 import numpy as np
 import pytest
 
-from fignetctl.core import capture
+from fignetctl.core import synthetic_capture as capture
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.media import read_video_info
 from fignetctl.errors import FignetError

@@ -34,7 +34,7 @@ point (u + 0.5, v + 0.5) of K, as in COLMAP and nerfstudio. TinyRenderer samples
 corner, so K's principal point is (width / 2 + 0.5, height / 2 - 0.5), not the image's middle
 (see `intrinsics`); GT depth, masks and projections of the GT meshes agree to the pixel.
 
-    from fignetctl.core.capture import render_capture
+    from fignetctl.core.synthetic_capture import render_capture
     render_capture("capture", views=40, width=320, height=240, seed=0)   # ~10 s on 2 cores
     render_capture("tiny", views=8, width=80, height=60, video=False)    # < 1 s, for tests
 """

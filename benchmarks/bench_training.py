@@ -1,7 +1,7 @@
 """Training throughput: samples (scenes) per second of `fignetctl train`'s loop, side by side.
 
 Each setting trains the same model on the same file from the same start for --steps steps
-after a warm-up (the normaliser statistics are frozen by then, as after step 500 of a real
+after a warm-up (the normalizer statistics are frozen by then, as after step 500 of a real
 run; the batch-building processes have started), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers: the bundled models' training);

@@ -79,7 +79,7 @@ from fignetctl.commands import options
     "--init-from",
     type=click.Path(dir_okay=False),
     default=None,
-    help="Start from this model file's weights and normaliser statistics (fine-tuning) instead of random weights; the settings given here must give the same network.",
+    help="Start from this model file's weights and normalizer statistics (fine-tuning) instead of random weights; the settings given here must give the same network.",
 )
 @click.option(
     "--target-keeps-noise/--no-target-keeps-noise",
@@ -92,7 +92,7 @@ from fignetctl.commands import options
     type=click.Choice(["mse", "huber"]),
     default="mse",
     show_default=True,
-    help="Loss on the normalised accelerations; huber weighs rare contact spikes less.",
+    help="Loss on the normalized accelerations; huber weighs rare contact spikes less.",
 )
 @click.option(
     "--steps",
@@ -169,7 +169,7 @@ def train(
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
     Adam with the learning rate decaying exponentially (--learning-rate, 1e-3 -> 1e-4) over --steps, noise on
-    the input history, MSE (or --loss huber) on normalised accelerations of the dynamic mesh nodes. The model
+    the input history, MSE (or --loss huber) on normalized accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it
     with the same weights an uninterrupted run would reach. Runs data-parallel under
     torchrun (see docs/simulator.md).

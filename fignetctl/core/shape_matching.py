@@ -26,7 +26,7 @@ import numpy as np
 WEIGHT_SUM_FLOOR = 1e-300
 
 
-def _normalised_weights(weights, point_shape):
+def _normalized_weights(weights, point_shape):
     """Weights (..., N) summing to 1; uniform where none are given or they sum to ~0."""
     uniform = np.full(point_shape[:-1], 1.0 / point_shape[-2])
     if weights is None:
@@ -72,7 +72,7 @@ def fit_rigid_transform(source, target, weights=None):
     source = np.asarray(source, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
     source, target = np.broadcast_arrays(source, target)
-    weights = _normalised_weights(weights, source.shape)
+    weights = _normalized_weights(weights, source.shape)
     source_centroid = (weights[..., None, :] @ source)[..., 0, :]
     target_centroid = (weights[..., None, :] @ target)[..., 0, :]
     weighted_source = source - source_centroid[..., None, :]
@@ -83,8 +83,8 @@ def fit_rigid_transform(source, target, weights=None):
     return rotation, translation
 
 
-def _normalised_weights_torch(torch, weights, point_shape, like):
-    """Torch twin of _normalised_weights, in float64 on `like`'s device."""
+def _normalized_weights_torch(torch, weights, point_shape, like):
+    """Torch twin of _normalized_weights, in float64 on `like`'s device."""
     uniform = torch.full(point_shape[:-1], 1.0 / point_shape[-2], dtype=torch.float64, device=like.device)
     if weights is None:
         return uniform
@@ -107,7 +107,7 @@ def _proper_rotation_from_covariance_torch(torch, covariance):
 def _fit_rigid_transform_torch_native(torch, source, target, weights):
     """fit_rigid_transform in torch ops, float64 throughout, on the tensors' device."""
     source, target = torch.broadcast_tensors(source.to(torch.float64), target.to(torch.float64))
-    weights = _normalised_weights_torch(torch, weights, source.shape, source)
+    weights = _normalized_weights_torch(torch, weights, source.shape, source)
     source_centroid = (weights[..., None, :] @ source)[..., 0, :]
     target_centroid = (weights[..., None, :] @ target)[..., 0, :]
     weighted_source = (source - source_centroid[..., None, :]) * weights[..., :, None]

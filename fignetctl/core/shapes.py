@@ -483,7 +483,7 @@ def convex_parts_obj_text(convex_parts) -> str:
 
 
 def build_asset(recipe: ShapeRecipe) -> ShapeAsset:
-    """Build a recipe: parts -> union mesh (or the given surface) -> normalised asset.
+    """Build a recipe: parts -> union mesh (or the given surface) -> normalized asset.
 
     Geometry errors from qhull, manifold3d or a malformed OBJ become FignetError.
     """
@@ -503,7 +503,7 @@ def built_asset(recipe: ShapeRecipe) -> ShapeAsset:
         mesh = subdivide_to_vertex_range(surface, recipe.vertex_range)
         parts = parts or [np.asarray(mesh.vertices)]
     check_solid(mesh, recipe.name)
-    return normalised_asset(recipe, mesh, parts)
+    return normalized_asset(recipe, mesh, parts)
 
 
 def solid_parts(parts: list, name: str) -> list:
@@ -661,7 +661,7 @@ def check_solid(mesh, name: str) -> None:
         raise FignetError(f"shape {name!r}: its mesh has zero volume or inward-facing triangles")
 
 
-def normalised_asset(recipe: ShapeRecipe, mesh, parts: list) -> ShapeAsset:
+def normalized_asset(recipe: ShapeRecipe, mesh, parts: list) -> ShapeAsset:
     """Scale mesh and parts to the recipe's largest side, then move the centre of mass to 0."""
     import trimesh
 

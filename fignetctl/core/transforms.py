@@ -8,7 +8,7 @@ object coordinates into world coordinates, so a world vertex is
 PyBullet and scipy order quaternions (x, y, z, w); `quat_xyzw_to_wxyz` and
 `quat_wxyz_to_xyzw` convert. Every function accepts any leading batch shape, `(..., 4)` for
 quaternions and `(..., 3)` for vectors, broadcasting like numpy. Functions that take a
-quaternion normalise it first, and a zero quaternion is read as the identity, so no input
+quaternion normalize it first, and a zero quaternion is read as the identity, so no input
 makes NaN.
 """
 
@@ -37,7 +37,7 @@ def quat_multiply(quaternions_a, quaternions_b):
     """Hamilton product a ⊗ b: the rotation b followed by the rotation a.
 
     quaternions_a, quaternions_b : (..., 4) float, broadcast against each other
-    returns : (..., 4) float64 (not normalised: unit inputs give a unit output)
+    returns : (..., 4) float64 (not normalized: unit inputs give a unit output)
     """
     a = np.asarray(quaternions_a, dtype=np.float64)
     b = np.asarray(quaternions_b, dtype=np.float64)
@@ -66,7 +66,7 @@ def quat_conjugate(quaternions):
 
 
 def quat_to_matrix(quaternions):
-    """Rotation matrices of (normalised) quaternions.
+    """Rotation matrices of (normalized) quaternions.
 
     quaternions : (..., 4) float, w x y z
     returns : (..., 3, 3) float64, proper rotations (R @ v rotates v object-to-world)

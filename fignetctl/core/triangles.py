@@ -246,7 +246,7 @@ def _points_inside_faces(points, corners, normals):
 
 
 def _triangle_normals(vertices):
-    """(3, n) un-normalised normals (b - a) × (c - a) of (3, 3, n) component-first triangles."""
+    """(3, n) un-normalized normals (b - a) × (c - a) of (3, 3, n) component-first triangles."""
     return _cross(vertices[:, 1] - vertices[:, 0], vertices[:, 2] - vertices[:, 0])
 
 

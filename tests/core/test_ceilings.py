@@ -215,7 +215,7 @@ def test_evaluate_measures_the_ceilings_beside_the_model(tosses, shapes):
         dataclasses.replace(config, dt=tosses.dt, gravity=tuple(tosses.gravity))
     ).eval()
     scenes = [scene_from_trajectory(tosses, key, SimulatorConfig()) for key in tosses.trajectories]
-    scene = scenes[0]  # normalisers from one frame; the weights stay random
+    scene = scenes[0]  # normalizers from one frame; the weights stay random
     velocities = (scene.velocities[1] * scene.dt, scene.angular_velocities[1] * scene.dt)
     simulator(
         build_scene_graph(

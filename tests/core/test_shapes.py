@@ -212,7 +212,7 @@ def test_movi_c_splits_are_disjoint_and_ten_percent():
     assert all("/" not in name for name in everything)  # names are HDF5 group names
 
 
-def test_movi_c_limit_loads_normalised_shapes(shape_cache):
+def test_movi_c_limit_loads_normalized_shapes(shape_cache):
     assets = shapes.load_shapes("movi-c", split="train", limit=3, cache_dir=shape_cache)
     assert [asset.name for asset in assets] == shapes.movi_c_names("train")[:3]
     for asset in assets:

@@ -1,1 +1,1 @@
-"""The learned network: graph structures, encode–process–decode, normaliser, input noise."""
+"""The learned network: graph structures, encode–process–decode, normalizer, input noise."""

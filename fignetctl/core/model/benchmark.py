@@ -24,7 +24,7 @@ is measured on the same pairs:
   figure is kept as a cross-check.) Not counted on either device: memory that is not a torch
   tensor (numpy arrays of the graph builder, oneDNN / BLAS scratch space, the Python heap).
 
-Untrained simulators fit their normalisers on the sampled graphs first (one accumulating
+Untrained simulators fit their normalizers on the sampled graphs first (one accumulating
 call per graph), so that they run every operation a trained model runs; weights do not
 change the cost.
 """
@@ -214,7 +214,7 @@ def copied_to(graph: MultiGraph, device) -> MultiGraph:
 
 
 def run_network(workload: Workload, device) -> torch.Tensor:
-    """The network part of a step: graph to the device, normalise, encode-process-decode."""
+    """The network part of a step: graph to the device, normalize, encode-process-decode."""
     with torch.no_grad():
         return workload.simulator(copied_to(workload.graph, device))
 
@@ -320,7 +320,7 @@ def cuda_peak_bytes(function, device) -> int:
 
 
 def model_bytes(simulator) -> int:
-    """Bytes of the parameters and buffers (the normalisers' statistics) of a model."""
+    """Bytes of the parameters and buffers (the normalizers' statistics) of a model."""
     tensors = list(simulator.parameters()) + list(simulator.buffers())
     return sum(t.numel() * t.element_size() for t in tensors)
 
@@ -405,7 +405,7 @@ def scenes_by_mesh_settings(path, simulators: dict) -> dict:
 
 
 def pair_workloads(simulators: dict, scenes: dict, scene_index, frame, noise_seed, device) -> dict:
-    """{label: Workload} of one pair, normalisers fitted; every model gets the same noise."""
+    """{label: Workload} of one pair, normalizers fitted; every model gets the same noise."""
     workloads = {}
     for label, simulator in simulators.items():
         scene = scenes[mesh_settings(simulator.config)][scene_index]

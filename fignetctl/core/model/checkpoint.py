@@ -1,4 +1,4 @@
-"""Model files (`model.pt`): weights, normalisers, settings, and optionally training state.
+"""Model files (`model.pt`): weights, normalizers, settings, and optionally training state.
 
 Layout of the torch file (loaded with `weights_only=True`, so nothing is unpickled but
 tensors and plain values):

@@ -3,8 +3,8 @@
 `torchrun --nproc_per_node N fignetctl train ...` starts N processes with RANK, LOCAL_RANK and
 WORLD_SIZE set; each joins one process group (gloo on the CPU, nccl on GPUs), draws its own
 batches, and DistributedDataParallel averages the gradients, so the effective batch is N times
---batch-size. Buffers (the normalisers' running statistics) are broadcast from rank 0 at each
-forward pass, so every rank normalises alike. Only rank 0 writes checkpoints.
+--batch-size. Buffers (the normalizers' running statistics) are broadcast from rank 0 at each
+forward pass, so every rank normalizes alike. Only rank 0 writes checkpoints.
 """
 
 from __future__ import annotations

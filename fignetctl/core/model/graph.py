@@ -91,7 +91,7 @@ def check_edge_set_shapes(edge_set: EdgeSet) -> None:
 
 @dataclasses.dataclass
 class MultiGraph:
-    """Nodes and named edge sets, already normalised.
+    """Nodes and named edge sets, already normalized.
 
     node_features : (N, F_n) float, mesh and object nodes in one index space
     edge_sets : name -> EdgeSet, each indexing rows of node_features

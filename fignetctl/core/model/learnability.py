@@ -6,7 +6,7 @@ fraction of the target variance left unexplained,
     FVU = Σ (prediction − target)² / Σ (target − mean target)²
 
 over every dynamic vertex of every frame t of the given scenes (no training noise), with the
-targets and predictions in the model's normalised units, is 1 for a model that predicts the
+targets and predictions in the model's normalized units, is 1 for a model that predicts the
 mean and 0 for a perfect one. benchmarks/learnability.py overfits two movi-b trajectories and
 reports it; the suite asserts it on seconds-long cases.
 """

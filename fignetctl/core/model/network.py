@@ -1,4 +1,4 @@
-"""The encode–process–decode graph network of FIGNet / FIGNet*, on already-normalised graphs.
+"""The encode–process–decode graph network of FIGNet / FIGNet*, on already-normalized graphs.
 
 Encode: one MLP for the nodes and one per edge set turn features into latents.
 Process: `message_passing_steps` blocks with unshared weights (as in MeshGraphNets and FIGNet).
@@ -10,14 +10,14 @@ of each edge set's messages into it, the sums concatenated in edge-set-name orde
     edge latent += update_e;  node latent += update_v
 
 The message an edge sends is its update (before the residual sum), as in MeshGraphNets.
-Decode: an MLP without LayerNorm from each node latent to `output_size` numbers (the normalised
+Decode: an MLP without LayerNorm from each node latent to `output_size` numbers (the normalized
 per-node acceleration).
 
 Face–face hyper-edges (FIGNet): the edge latent has three parts of `latent_size`, part k
 belonging to receiver vertex k (vertex order is canonical, set by the graph builder). One MLP
 updates all three parts together from [edge latent (3L), the three sender vertex latents (3L),
 the three receiver vertex latents (3L)], so part k is updated with sender vertex k and receiver
-vertex k (and sees the rest of both faces); each part is layer-normalised on its own, added to
+vertex k (and sees the rest of both faces); each part is layer-normalized on its own, added to
 its part of the edge latent, and summed into receiver vertex k only. The message MLP is
 therefore the edge-update MLP, with output 3·L, as for ordinary edges; a separate message MLP
 would add a second MLP per block for no information the first lacks.
@@ -52,7 +52,7 @@ class NetworkConfig:
     message_passing_steps: int = 10
     """Processor blocks, each with its own weights."""
     output_size: int = 3
-    """Numbers decoded per node: the normalised acceleration."""
+    """Numbers decoded per node: the normalized acceleration."""
 
 
 PRESETS = {
@@ -88,7 +88,7 @@ class PartwiseLayerNorm(nn.Module):
 
 
 def build_mlp_with_layer_norm(input_size: int, output_parts: int, config: NetworkConfig) -> nn.Sequential:
-    """An MLP to `output_parts` latents of config.latent_size, each layer-normalised."""
+    """An MLP to `output_parts` latents of config.latent_size, each layer-normalized."""
     mlp = build_mlp(
         input_size,
         config.mlp_hidden_size,
@@ -166,7 +166,7 @@ class GraphNetBlock(nn.Module):
 
 
 class EncodeProcessDecode(nn.Module):
-    """Normalised graph -> per-node output (N, config.output_size).
+    """Normalized graph -> per-node output (N, config.output_size).
 
     Built from a `GraphSignature` (feature widths and hyper-edge sets), so it has weights only
     for the edge sets it will see: a FIGNet* network has no node_node weights at all. Use
@@ -195,7 +195,7 @@ class EncodeProcessDecode(nn.Module):
         return cls(config, graph_signature(graph))
 
     def forward(self, graph: MultiGraph) -> torch.Tensor:
-        """graph : normalised MultiGraph matching self.signature. Returns (N, output_size)."""
+        """graph : normalized MultiGraph matching self.signature. Returns (N, output_size)."""
         check_graph_matches_signature(graph, self.signature)
         node_latents = self.node_encoder(graph.node_features)
         edge_latents = {

@@ -1,4 +1,4 @@
-"""Running-statistics normalisation of features and targets, as in meshgraphnets.
+"""Running-statistics normalization of features and targets, as in meshgraphnets.
 
 The statistics are buffers (count, sum, sum of squares, in float64 so that sums over millions
 of samples stay exact to ~1e-16 relative), so they are saved and loaded with the model's
@@ -8,7 +8,7 @@ the float64 buffers too; `.to(device)` is fine.
 The variance is sum_of_squares / count − mean², clamped at 0; it loses precision when
 |mean| ≫ std (relative error ~1e-16 · mean² / std²), which the graph's relative features
 (velocities, offsets) keep far away. The standard deviation is floored at `std_epsilon`, so a
-feature that was constant in every batch seen normalises to 0 instead of NaN or inf.
+feature that was constant in every batch seen normalizes to 0 instead of NaN or inf.
 """
 
 from __future__ import annotations

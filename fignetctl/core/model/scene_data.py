@@ -7,7 +7,7 @@ costs nothing (the broad phase keeps static faces cached), and decimating an env
 tears holes in it (the main job's tray, 1002 faces cut to 256, lost the floor under the ball,
 which fell through). Static meshes are instead subdivided until no edge is longer than `max_static_edge` metres, so that a
 floor is made of faces the size of an object's rather than of two huge triangles (the
-face–face features and their normaliser see vertex offsets). Prepared meshes are made once
+face–face features and their normalizer see vertex offsets). Prepared meshes are made once
 per mesh name (and scale, for static ones).
 
 When the whole trajectory is known (training, evaluation), static faces farther than

@@ -1,4 +1,4 @@
-"""Graph construction: two frames of a scene (t−1, t) -> the raw graph the simulator normalises.
+"""Graph construction: two frames of a scene (t−1, t) -> the raw graph the simulator normalizes.
 
 Nodes, in this order:
 1. the vertices of every dynamic object (all of them, in the scene's global vertex order),
@@ -83,7 +83,7 @@ class GraphConfig:
     """Face–face features hold each face's vertices relative to its closest point; vectors
     longer than this (metres) are shortened to it, keeping their direction. A floor of a few
     huge triangles then looks like any other face near the contact, instead of setting the
-    normaliser's scale to tens of metres, and without the edges a subdivided floor costs.
+    normalizer's scale to tens of metres, and without the edges a subdivided floor costs.
     None: not clamped (model files older than this field read as None)."""
     static_receivers: bool = True
     """True: face–face edges run both ways between a dynamic and a static face. False: only
@@ -275,7 +275,7 @@ def unique_undirected_edges(faces):
 
 @dataclasses.dataclass
 class SceneGraph:
-    """A raw (unnormalised) graph and how its nodes map back to the scene.
+    """A raw (unnormalized) graph and how its nodes map back to the scene.
 
     graph : MultiGraph with float32 features
     node_vertex : (N,) int64, the global vertex of each mesh node, −1 for object nodes

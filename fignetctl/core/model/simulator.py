@@ -1,8 +1,8 @@
 """The learned simulator around the network: features in, rigid poses out.
 
 Three layers, as in learning_to_simulate: `EncodeProcessDecode` (network.py) sees only
-normalised graphs; `LearnedSimulator` here builds and normalises graphs (`preprocess`), turns
-the network's normalised accelerations into next positions (`postprocess`), and makes training
+normalized graphs; `LearnedSimulator` here builds and normalizes graphs (`preprocess`), turns
+the network's normalized accelerations into next positions (`postprocess`), and makes training
 targets (`inverse_postprocess`); noise comes from noise.py and is passed in.
 
 One step reads like the paper:
@@ -59,7 +59,7 @@ from fignetctl.errors import FignetError
 
 STATES = ("positions", "velocities")
 
-# Floor of every normaliser's std: features are in metres (per step) and material units, so a
+# Floor of every normalizer's std: features are in metres (per step) and material units, so a
 # spread below a micrometre is float rounding, which must not be blown up into signal.
 STD_EPSILON = 1e-6
 
@@ -78,7 +78,7 @@ class SimulatorConfig:
     max_static_edge: float | None = None
     """Static meshes are subdivided until no edge is longer than this (m); None keeps them.
     The face–face features hold each face's vertices relative to its closest point, so one
-    80 m floor triangle beside 0.1 m object triangles would set the normaliser's scale to
+    80 m floor triangle beside 0.1 m object triangles would set the normalizer's scale to
     tens of metres and hide the object's contact geometry. Subdividing the floor to 1 m (the
     v2 retraining) fixed that at 2.8x the face-face edges; clamping the offsets
     (`GraphConfig.max_vertex_offset`, the default now) fixes it with none."""
@@ -132,7 +132,7 @@ def output_size_for(state: str) -> int:
 
 
 class LearnedSimulator(nn.Module):
-    """Normalisers and the network; predicts the next world vertices of dynamic objects."""
+    """Normalizers and the network; predicts the next world vertices of dynamic objects."""
 
     def __init__(self, config: SimulatorConfig):
         super().__init__()
@@ -150,15 +150,15 @@ class LearnedSimulator(nn.Module):
         self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
-        """Raw graph -> normalised graph (statistics updated when `accumulate`)."""
+        """Raw graph -> normalized graph (statistics updated when `accumulate`)."""
         nodes = self.node_normalizer(graph.node_features, accumulate)
         edge_sets = {
-            name: self._normalised_edge_set(edge_set, accumulate)
+            name: self._normalized_edge_set(edge_set, accumulate)
             for name, edge_set in graph.edge_sets.items()
         }
         return MultiGraph(nodes, edge_sets)
 
-    def _normalised_edge_set(self, edge_set: EdgeSet, accumulate: bool) -> EdgeSet:
+    def _normalized_edge_set(self, edge_set: EdgeSet, accumulate: bool) -> EdgeSet:
         normalizer = self.edge_normalizers[edge_set.name]
         accumulate = accumulate and edge_set.num_edges > 0
         if normalizer.count.item() == 0 and not accumulate:
@@ -167,24 +167,24 @@ class LearnedSimulator(nn.Module):
         return EdgeSet(edge_set.name, features, edge_set.senders, edge_set.receivers)
 
     def forward(self, graph: MultiGraph, accumulate: bool = False) -> torch.Tensor:
-        """Raw graph -> (N, 3) normalised per-node accelerations."""
+        """Raw graph -> (N, 3) normalized per-node accelerations."""
         return self.network(self.preprocess(graph, accumulate))
 
     def inverse_postprocess(
         self, next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, accumulate=False
     ):
         """What the network must output to reach x_{t+1} (and u_{t+1} for a velocity state) from
-        the history: normalised `acceleration_targets`, a (n, output_size) float32 tensor."""
+        the history: normalized `acceleration_targets`, a (n, output_size) float32 tensor."""
         targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
         return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
 
     def normalized_targets(self, targets: torch.Tensor, accumulate: bool) -> torch.Tensor:
-        """(n, output_size) raw `acceleration_targets` -> normalised (statistics updated when `accumulate`)."""
+        """(n, output_size) raw `acceleration_targets` -> normalized (statistics updated when `accumulate`)."""
         return self.acceleration_normalizer(targets, accumulate)
 
     def postprocess(self, normalized_acceleration, vertices_previous, vertices_now):
         """The network's output -> x_{t+1}, and u_{t+1} for a velocity state (None for a
-        positions state): `integrate` of the denormalised output; float64 numpy."""
+        positions state): `integrate` of the denormalized output; float64 numpy."""
         acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
         return integrate(acceleration.detach().cpu().double().numpy(), vertices_previous, vertices_now)
 

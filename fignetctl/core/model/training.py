@@ -2,7 +2,7 @@
 
 Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and t+1 around
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
-regresses the normalised accelerations of the dynamic mesh nodes with an MSE loss. Adam with a
+regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss. Adam with a
 learning rate decaying exponentially from `learning_rate_initial` to `learning_rate_final`.
 
 Throughput: the batches are built in worker processes (`TrainingBatches` behind a torch
@@ -60,11 +60,11 @@ class TrainingConfig:
     target undoes the position noise as well, a = −2v, which a rollout turns into a
     period-2 oscillation of resting objects (±v every frame, for ever)."""
     loss: str = "mse"
-    """'mse' (the paper) or 'huber' on the normalised accelerations."""
+    """'mse' (the paper) or 'huber' on the normalized accelerations."""
     huber_delta: float = 0.5
     """Where the Huber loss turns from quadratic to linear, in target standard deviations."""
     normalizer_accumulation_steps: int = 500
-    """Normaliser statistics are gathered over the first this many steps, then frozen."""
+    """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
     """Steps between checkpoints."""
     seed: int = 0
@@ -302,7 +302,7 @@ class Trainer:
 
 
 def regression_loss(predictions, targets, config: TrainingConfig) -> torch.Tensor:
-    """Mean loss over nodes and components of the normalised accelerations."""
+    """Mean loss over nodes and components of the normalized accelerations."""
     if config.loss == "huber":
         return torch.nn.functional.huber_loss(predictions, targets, delta=config.huber_delta)
     if config.loss == "mse":
@@ -323,7 +323,7 @@ def make_trainer(
     dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0
 ):
     """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
-    or a new run that starts from the weights and normaliser statistics of `init_from`."""
+    or a new run that starts from the weights and normalizer statistics of `init_from`."""
     dataset_path = Path(dataset_path)
     data = read_trajectories(dataset_path)  # a clear error for a missing or damaged file, before hashing it
     data_hash = file_sha256(dataset_path)
@@ -362,7 +362,7 @@ def make_trainer(
 
 
 def _load_weights(simulator, path) -> None:
-    """Copy a model file's weights and normaliser statistics into `simulator`, or a clear
+    """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size)."""
     source = load_checkpoint(path)
     try:

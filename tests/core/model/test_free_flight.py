@@ -26,7 +26,7 @@ def exact_pose(t, start, velocity, spin, start_quaternion):
 
 
 def untrained_simulator(scene):
-    """Random weights; normalisers given statistics from the scene's first step."""
+    """Random weights; normalizers given statistics from the scene's first step."""
     torch.manual_seed(0)
     simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"]))
     history = three_frames(scene)

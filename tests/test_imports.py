@@ -66,3 +66,11 @@ def test_the_package_has_no_import_cycle():
     graph = module_imports()
     assert len(graph) > 50 and "fignetctl.core.provenance" in graph["fignetctl.core.model.training"]
     assert cycles(graph) == []
+
+
+def test_the_library_does_not_import_the_measuring_code():
+    graph = module_imports()
+    library = [name for name in graph if name.startswith("fignetctl.core")]
+    assert library and not [
+        (name, other) for name in library for other in graph[name] if other.startswith("fignetctl.bench")
+    ]

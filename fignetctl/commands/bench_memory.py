@@ -103,8 +103,8 @@ def bench_memory(
     """
     import json
 
+    from fignetctl.bench import memory as benchmark
     from fignetctl.core.atomic import atomic_path
-    from fignetctl.core.model import benchmark
 
     if model_paths and (size or max_faces is not None or collision_radius):
         raise click.UsageError(

@@ -53,7 +53,8 @@ KNOB_CHOICES = [
     "--nerf-curve",
     type=click.Path(exists=True, dir_okay=False),
     default=None,
-    help="Learning-curve json of benchmarks/bench_nerf.py for nerf-steps.  [default: benchmarks/results/nerf_psnr_vs_time.json]",
+    help="Learning-curve json of benchmarks/bench_nerf.py for nerf-steps (the repository has one: "
+    "benchmarks/results/nerf_psnr_vs_time.json).",
 )
 @click.option(
     "--trajectories",
@@ -122,17 +123,21 @@ def tradeoff(
       fignetctl make-dataset --preset movi-b --split test -n 8 --seed 11 -o gt.h5
       fignetctl tradeoff decimation collision-radius --data gt.h5 -o tradeoff/
       fignetctl tradeoff marching-cubes --capture capture --nerf nerf.pt -o tradeoff/
-      fignetctl tradeoff nerf-steps device --quick -o /tmp/t
+      fignetctl tradeoff nerf-steps --nerf-curve benchmarks/results/nerf_psnr_vs_time.json -o /tmp/t
     """
     import dataclasses
     from pathlib import Path
 
-    from fignetctl.core import tradeoff as core
+    from fignetctl.bench import tradeoff as core
 
     knobs = list(core.KNOBS) if "all" in knobs else list(dict.fromkeys(knobs))
     if "marching-cubes" in knobs and not (capture and nerf):
         raise click.UsageError(
             "marching-cubes needs --capture (render-views output) and --nerf (fit-nerf on it)"
+        )
+    if "nerf-steps" in knobs and not nerf_curve:
+        raise click.UsageError(
+            "nerf-steps needs --nerf-curve (a learning curve from benchmarks/bench_nerf.py)"
         )
     out_dir = Path(out_dir)
     outputs = {
@@ -156,7 +161,7 @@ def tradeoff(
         "train_data": train_data,
         "capture": capture,
         "nerf": nerf,
-        "nerf_curve": nerf_curve or default_curve(),
+        "nerf_curve": nerf_curve,
     }
     inputs.update(ground_truth_files(knobs, inputs, out_dir, config))
     for knob in knobs:
@@ -166,16 +171,9 @@ def tradeoff(
         click.echo(str(outputs[knob][0]))
 
 
-def default_curve():
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "nerf_psnr_vs_time.json"
-    return str(path) if path.is_file() else None
-
-
 def ground_truth_files(knobs, inputs, out_dir, config) -> dict:
     """Make the movi-b files a sweep needs and was not given (kept in OUT_DIR for reuse)."""
-    from fignetctl.core import tradeoff as core
+    from fignetctl.bench import tradeoff as core
 
     made = {}
     wanted = {
@@ -206,8 +204,6 @@ def run_knob(core, knob, inputs, config, on_progress):
     if knob == "marching-cubes":
         return core.sweep_marching_cubes(inputs["capture"], inputs["nerf"], config, on_progress)
     if knob == "nerf-steps":
-        if inputs["nerf_curve"] is None:
-            raise click.UsageError("nerf-steps needs --nerf-curve (benchmarks/bench_nerf.py's json)")
         return core.sweep_nerf_steps(inputs["nerf_curve"], config)
     if knob == "message-passing":
         return core.sweep_message_passing(inputs["train_data"], inputs["data"], config, on_progress)

@@ -8,8 +8,8 @@ from click.testing import CliRunner
 from torch.utils._python_dispatch import TorchDispatchMode
 from torch.utils._pytree import tree_flatten
 
+from fignetctl.bench import memory as benchmark
 from fignetctl.cli import cli
-from fignetctl.core.model import benchmark
 from fignetctl.core.model.simulator import SimulatorConfig
 from fignetctl.core.trajectory import write_trajectories
 from tests.conftest import box_drop_file

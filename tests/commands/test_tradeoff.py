@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import torch
 from click.testing import CliRunner
@@ -44,3 +45,12 @@ def test_quick_message_passing_trains_two_sizes(tmp_path):
 def test_marching_cubes_needs_a_capture_and_a_nerf(tmp_path):
     result = run(["marching-cubes", "-o", str(tmp_path)])
     assert result.exit_code == 2 and "--capture" in result.output
+
+
+def test_nerf_steps_needs_a_learning_curve_and_reads_the_given_one(tmp_path):
+    result = run(["nerf-steps", "-o", str(tmp_path)])
+    assert result.exit_code == 2 and "--nerf-curve" in result.output and not list(tmp_path.iterdir())
+    curve = Path(__file__).resolve().parents[2] / "benchmarks" / "results" / "nerf_psnr_vs_time.json"
+    result = run(["nerf-steps", "--nerf-curve", str(curve), "-o", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((tmp_path / "tradeoff-nerf-steps.json").read_text())["points"]

@@ -149,6 +149,21 @@ class LearnedSimulator(nn.Module):
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
         self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
 
+    def with_graph_config(self, **changes) -> LearnedSimulator:
+        """A copy with the same weights and normalizers, on the same device and in the same mode,
+        that builds its graphs with these GraphConfig fields changed (collision_radius, say), for
+        sweeps over graph settings. Changes that would reshape the network are refused."""
+        config = dataclasses.replace(self.config, graph=dataclasses.replace(self.config.graph, **changes))
+        other = LearnedSimulator(config)
+        try:
+            other.load_state_dict(self.state_dict())
+        except RuntimeError:
+            raise FignetError(
+                f"graph settings {changes} change the network's inputs; train a model for them"
+            ) from None
+        other.trained_properties = self.trained_properties
+        return other.to(next(self.parameters()).device).train(self.training)
+
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
         """Raw graph -> normalized graph (statistics updated when `accumulate`)."""
         nodes = self.node_normalizer(graph.node_features, accumulate)

@@ -320,3 +320,15 @@ def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refus
     )
     with pytest.raises(FignetError, match="give the scene at dt = 0.0166667"):
         rollout_file(positions_model, at_30_fps, None, 4)
+
+
+def test_a_copy_with_another_collision_radius_shares_the_weights_but_not_the_graphs():
+    torch.manual_seed(0)
+    simulator = LearnedSimulator(VELOCITY_TINY).eval()
+    wider = simulator.with_graph_config(collision_radius=0.5)
+    assert wider.config.graph.collision_radius == 0.5 and simulator.config.graph.collision_radius == 0.1
+    assert not wider.training and wider.trained_properties is simulator.trained_properties
+    for (name, mine), (other_name, theirs) in zip(simulator.state_dict().items(), wider.state_dict().items()):
+        assert name == other_name and torch.equal(mine, theirs)
+    with pytest.raises(FignetError, match="change the network's inputs"):
+        simulator.with_graph_config(surface_edges=True)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from fignetctl.core import tradeoff
-from fignetctl.core.stats import median_iqr
+from fignetctl.bench import tradeoff
+from fignetctl.bench.stats import median_iqr, pareto_front
 
 
 def brute_force_front(seconds, errors):
@@ -36,14 +36,14 @@ def test_pareto_front_matches_brute_force(seed):
     errors = rng.integers(0, 6, n).astype(float)
     if seed % 3 == 0:
         errors[rng.integers(n)] = np.nan
-    np.testing.assert_array_equal(tradeoff.pareto_front(seconds, errors), brute_force_front(seconds, errors))
+    np.testing.assert_array_equal(pareto_front(seconds, errors), brute_force_front(seconds, errors))
 
 
 def test_pareto_front_small_cases():
-    assert tradeoff.pareto_front([], []).tolist() == []
-    assert tradeoff.pareto_front([1.0, 2.0, 3.0], [3.0, 2.0, 1.0]).tolist() == [True, True, True]
-    assert tradeoff.pareto_front([1.0, 2.0], [1.0, 2.0]).tolist() == [True, False]
-    assert tradeoff.pareto_front([1.0, 1.0], [2.0, 2.0]).tolist() == [True, True]
+    assert pareto_front([], []).tolist() == []
+    assert pareto_front([1.0, 2.0, 3.0], [3.0, 2.0, 1.0]).tolist() == [True, True, True]
+    assert pareto_front([1.0, 2.0], [1.0, 2.0]).tolist() == [True, False]
+    assert pareto_front([1.0, 1.0], [2.0, 2.0]).tolist() == [True, True]
 
 
 def point(setting, seconds, error):

@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from fignetctl import __version__
+from fignetctl.bench.stats import median_iqr
 from fignetctl.core.model.graph import (
     FACE_FACE,
     MESH_TO_OBJECT,
@@ -53,7 +54,6 @@ from fignetctl.core.model.graph import (
 )
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.scene_graph import build_scene_graph, collision_face_pairs
-from fignetctl.core.stats import median_iqr
 from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.bench-memory"

@@ -12,7 +12,7 @@ Knobs and what a point is:
   dynamic objects at the last rollout step, one value per trajectory; seconds: one
   `LearnedSimulator.step`, one value per step; peak torch memory of the network part.
 - ``architecture``: bundled FIGNet vs FIGNet*, the same rollouts; plus bench-memory's step and
-  training-step memory and time (core/model/benchmark.py).
+  training-step memory and time (bench/memory.py).
 - ``collision-radius``: the bundled FIGNet* with other face–face radii (off its trained
   0.2 m the inputs are out of distribution); face–face edges per graph too.
 - ``message-passing``: small FIGNet* models trained with one budget (`train_steps`) for a few
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl import __version__
-from fignetctl.core.stats import median_iqr
+from fignetctl.bench.stats import median_iqr, pareto_front
 from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.tradeoff"
@@ -80,27 +80,6 @@ class TradeoffConfig:
 
 
 QUICK = TradeoffConfig(trajectories=1, steps=2, repeats=1, train_steps=2, frames_per_trajectory=2, quick=True)
-
-
-# -- the Pareto front ---------------------------------------------------------------------------
-
-
-def pareto_front(seconds, errors) -> np.ndarray:
-    """(n,), (n,) -> (n,) bool: points that no other point beats, i.e. none is at least as fast
-    and at least as accurate and strictly better in one. Lower is better on both axes (pass
-    −accuracy for a higher-is-better figure); points with a non-finite value are never on it.
-    Equal points are all on the front."""
-    seconds, errors = np.asarray(seconds, np.float64), np.asarray(errors, np.float64)
-    finite = np.isfinite(seconds) & np.isfinite(errors)
-    front = np.zeros(len(seconds), bool)
-    best_error, best_seconds = np.inf, np.nan
-    for i in np.lexsort((errors, seconds)):  # by seconds, ties by error
-        if not finite[i]:
-            continue
-        if errors[i] < best_error or (errors[i] == best_error and seconds[i] == best_seconds):
-            front[i] = True
-            best_error, best_seconds = min(errors[i], best_error), seconds[i]
-    return front
 
 
 def mark_pareto(result: dict) -> dict:
@@ -364,7 +343,7 @@ def network_peak_mib(simulator, scenes, device, seed=0) -> list[float]:
     frame of each scene, by bench-memory's method."""
     import torch
 
-    from fignetctl.core.model import benchmark
+    from fignetctl.bench import memory as benchmark
 
     peaks = []
     for scene in scenes:
@@ -454,7 +433,7 @@ def sweep_decimation(data_path, config: TradeoffConfig, on_progress=None, faces=
 
 
 def sweep_architecture(data_path, config: TradeoffConfig, on_progress=None) -> dict:
-    from fignetctl.core.model import benchmark
+    from fignetctl.bench import memory as benchmark
     from fignetctl.core.model.runs import load_model
 
     simulators = {
@@ -520,8 +499,6 @@ def face_face_edges(simulator, scenes, every=5) -> list[int]:
 
 
 def sweep_collision_radius(data_path, config: TradeoffConfig, on_progress=None, radii=None) -> dict:
-    import copy
-
     from fignetctl.core.model.runs import load_model
 
     base = load_model(None, config.device).eval()
@@ -530,10 +507,7 @@ def sweep_collision_radius(data_path, config: TradeoffConfig, on_progress=None, 
     points = []
     with _torch_threads(config.threads):
         for radius in radii:
-            simulator = copy.copy(base)  # shares the weights; only the graph settings differ
-            simulator.config = dataclasses.replace(
-                base.config, graph=dataclasses.replace(base.config.graph, collision_radius=radius)
-            )
+            simulator = base.with_graph_config(collision_radius=radius)
             edges = median_iqr(face_face_edges(simulator, scenes))
             points.append(
                 rollout_point(radius, simulator, scenes, config, on_progress, face_face_edges=edges)
@@ -798,6 +772,6 @@ def sweep_device(data_path, config: TradeoffConfig, on_progress=None) -> dict:
 
 
 def _torch_threads(threads):
-    from fignetctl.core.model.benchmark import torch_threads
+    from fignetctl.bench.memory import torch_threads
 
     return torch_threads(threads)

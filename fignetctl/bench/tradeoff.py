@@ -266,7 +266,7 @@ def make_ground_truth(path, num_trajectories, duration, seed, split="test", on_t
             on_trajectory()
     attrs = {
         "source": "fignetctl tradeoff",
-        "version": __version__,
+        "fignetctl_version": __version__,
         "preset": "movi-b",
         "seed": seed,
         "split": split,

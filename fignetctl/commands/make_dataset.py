@@ -96,7 +96,7 @@ def make_dataset(preset, num_trajectories, fps, duration, seed, shard, split, jo
     click.echo(summary_line(stats), err=True)
     attrs = {
         "source": "fignetctl make-dataset",
-        "version": __version__,
+        "fignetctl_version": __version__,
         "preset": preset,
         "seed": seed,
         "shard": f"{shard[0]}/{shard[1]}",

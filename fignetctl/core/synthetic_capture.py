@@ -761,7 +761,7 @@ def scene_document(objects, config, cameras, names) -> dict:
         "format": SCENE_FORMAT,
         "format_version": FORMAT_VERSION,
         "source": "fignetctl render-views",
-        "version": __version__,
+        "fignetctl_version": __version__,
         "units": "metres",
         "up": "+z",
         "world_vertex": "R(quaternion_wxyz) . (scale . mesh_file_vertex) + position; objects/<name>.obj is already in world",

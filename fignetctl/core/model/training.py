@@ -249,6 +249,12 @@ class Trainer:
             group["lr"] = self.config.learning_rate_initial * learning_rate_factor(self.step, self.config)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        gradients = [p.grad for p in self.simulator.parameters() if p.grad is not None]
+        if not torch.stack([g.isfinite().all() for g in gradients]).all():  # the same on every rank
+            raise FignetError(
+                f"the training loss or its gradient is not finite at step {self.step + 1}; the weights of "
+                "the last checkpoint are kept; train again with a lower learning rate"
+            )
         self.optimizer.step()
         self.step += 1
 

@@ -51,6 +51,26 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(box_file, tmp_pat
         torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=0, atol=0)
 
 
+def test_a_non_finite_loss_stops_training_and_keeps_the_last_checkpoint(box_file, tmp_path, monkeypatch):
+    from fignetctl.core.model import training
+
+    honest, calls = training.regression_loss, []
+
+    def poisoned(predictions, targets, config):
+        calls.append(1)
+        loss = honest(predictions, targets, config)
+        return loss * float("nan") if len(calls) == 6 else loss
+
+    monkeypatch.setattr(training, "regression_loss", poisoned)
+    trainer = make_trainer(box_file, TINY, _config())
+    with pytest.raises(
+        FignetError, match="not finite at step 6; the weights of the last checkpoint are kept"
+    ):
+        trainer.run(tmp_path / "run.pt")
+    kept, state = load_checkpoint(tmp_path / "run.pt", with_training_state=True)
+    assert state["step"] == 4 and all(torch.isfinite(v).all() for v in kept.state_dict().values())
+
+
 def test_checkpoint_round_trip_keeps_predictions(box_file, tmp_path):
     trainer = make_trainer(box_file, TINY, _config())
     trainer.run()

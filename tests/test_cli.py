@@ -1,9 +1,13 @@
+import os
 import subprocess
 import sys
 
+import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import COMMANDS, cli
+from fignetctl.core.documents import require_regular_file
+from fignetctl.errors import FormatError
 
 
 def test_help_lists_every_command_without_importing_heavy_stacks():
@@ -82,3 +86,22 @@ def test_an_operating_system_error_inside_a_command_is_one_line(tmp_path, monkey
     assert result.output.strip().splitlines()[-1] == (
         f"Error: {tmp_path / 'v.mp4'}: no space left on device; free some disk space and run it again"
     )
+
+
+def test_readers_refuse_pipes_and_directories_without_waiting(tmp_path):
+    fifo = tmp_path / "pipe.h5"
+    os.mkfifo(fifo)
+    for args in (
+        ["show", str(fifo)],
+        ["rollout", str(fifo), "-o", str(tmp_path / "r.h5")],
+        ["evaluate", str(fifo)],
+        ["capture-poses", "--import-transforms", str(fifo), "-o", str(tmp_path / "c.npz")],
+    ):
+        result = CliRunner().invoke(cli, args)
+        assert result.exit_code != 0 and "Traceback" not in result.output, (args, result.output)
+        said = result.output
+        assert "not a regular file" in said or "is not a file" in said, (args, said)
+    with pytest.raises(FormatError, match="not a regular file"):
+        require_regular_file(tmp_path)
+    with pytest.raises(FormatError, match="no such model file"):
+        require_regular_file(tmp_path / "none.pt", "model")

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import read_npz_document
+from fignetctl.core.documents import read_npz_document, require_regular_file
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.cameras"
@@ -223,7 +223,7 @@ def export_transforms_json(path, cameras: Cameras, image_prefix: str = "") -> No
 def import_transforms_json(path, image_dir=None) -> Cameras:
     """Read transforms.json; image names are relative to `image_dir` (default: the json's
     folder). Sizes missing from the json are read from the first image."""
-    path = Path(path)
+    path = require_regular_file(path)
     try:
         document = json.loads(path.read_text())
         frames = document["frames"]

@@ -11,15 +11,25 @@ import numpy as np
 from fignetctl.errors import FormatError
 
 
+def require_regular_file(path, kind: str = "") -> Path:
+    """`path` as a Path, or a one-line FormatError when it is missing or is not a regular file
+    (a directory, a FIFO or a device, which a reader could wait on for ever). `kind`: what the
+    file is ('model'), for the message."""
+    path = Path(path)
+    if not path.exists():
+        raise FormatError(f"{path}: no such {kind + ' ' if kind else ''}file")
+    if not path.is_file():
+        raise FormatError(f"{path}: not a regular file (a directory, pipe or device); give a file")
+    return path
+
+
 def read_npz_document(path, name: str, fmt: str, version: int, required=()) -> dict:
     """The arrays of an .npz whose `format` is `fmt` and `format_version` is `version`, with
     every field of `required` present; any problem is a one-line FormatError naming `path`.
 
     name : what the file is, for the messages (e.g. 'cameras.npz')
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
+    path = require_regular_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
@@ -48,9 +58,7 @@ def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: in
     """
     import torch
 
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such {kind} file")
+    path = require_regular_file(path, kind)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for corrupt or foreign files

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fignetctl.core.documents import require_regular_file
 from fignetctl.core.mesh_extraction import (
     ExtractionSettings,
     View,
@@ -189,8 +190,9 @@ def parse_prompts(texts, cameras) -> dict:
 
 def read_prompts_json(path, cameras, object_name=None) -> dict:
     """prompts.json (format fignetctl.prompts v1) -> {view index: [(u, v)]} of one object."""
+    path = require_regular_file(path)
     try:
-        document = json.loads(Path(path).read_text())
+        document = json.loads(path.read_text())
         if document.get("format") != "fignetctl.prompts" or document.get("format_version") != 1:
             raise ValueError("not format fignetctl.prompts version 1")
         objects = document["objects"]

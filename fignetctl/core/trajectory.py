@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.documents import require_regular_file
 from fignetctl.core.hdf5_guard import read_guarded
 from fignetctl.errors import FormatError
 
@@ -202,9 +203,7 @@ def read_trajectories(path, trajectory_ids=None) -> TrajectoryFile:
     quaternions, faces out of range, non-finite numbers, unknown format versions).
     """
 
-    path = Path(path)
-    if not path.is_file():
-        raise FormatError(f"{path}: no such file")
+    path = require_regular_file(path)
     _check_global_heaps(path)
     return read_guarded(_read_unguarded, path, trajectory_ids)
 

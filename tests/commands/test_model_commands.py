@@ -5,6 +5,7 @@ import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import cli
+from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from tests.conftest import box_drop_file
 
@@ -109,6 +110,7 @@ def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
     rolled = read_trajectories(out).trajectories["00000"]
     truth = read_trajectories(data).trajectories["00000"]
     assert rolled.positions.shape == (7, 2, 3)
+    assert read_trajectories(out).attrs["model_sha256"] == file_sha256(model)  # which model made it
     np.testing.assert_array_equal(rolled.positions[:2], truth.positions[:2])
     np.testing.assert_array_equal(
         rolled.positions[:, 0], truth.positions[:7, 0]

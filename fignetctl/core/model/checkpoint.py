@@ -24,6 +24,7 @@ from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
 from fignetctl.core.model.trained_ranges import ranges_from_json
+from fignetctl.core.provenance import file_sha256
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -88,6 +89,7 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
             f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})"
         ) from None
     _check_finite_state(simulator, path)
+    simulator.source_sha256 = file_sha256(path)  # outputs made with it record which model file it was
     training_state = payload.get("training_state")
     if with_training_state and training_state is not None and not isinstance(training_state, dict):
         raise FormatError(f"{path}: 'training_state' is not a dictionary; the file cannot be resumed")
@@ -113,7 +115,6 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     be the run's).
     """
     from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json, trajectory_largest_sides
-    from fignetctl.core.provenance import file_sha256
     from fignetctl.core.trajectory import read_trajectories
 
     payload = read_checkpoint_payload(source)

@@ -137,6 +137,7 @@ def rollout_result(
     used = set(trajectory.mesh_names)
     meshes = {name: mesh for name, mesh in data.meshes.items() if name in used}
     attrs = {
+        **({"model_sha256": simulator.source_sha256} if simulator.source_sha256 else {}),
         "source": "fignetctl rollout",
         "model_config": simulator.config.to_json(),
         "sim_scale": float(sim_scale),

@@ -147,6 +147,7 @@ class LearnedSimulator(nn.Module):
             }
         )
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
+        self.source_sha256 = None  # the SHA-256 of the model file it was loaded from, if any
         self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
 
     def with_graph_config(self, **changes) -> LearnedSimulator:
@@ -161,7 +162,7 @@ class LearnedSimulator(nn.Module):
             raise FignetError(
                 f"graph settings {changes} change the network's inputs; train a model for them"
             ) from None
-        other.trained_properties = self.trained_properties
+        other.trained_properties, other.source_sha256 = self.trained_properties, self.source_sha256
         return other.to(next(self.parameters()).device).train(self.training)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:

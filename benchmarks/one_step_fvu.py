@@ -1,0 +1,57 @@
+"""How much of the one-step target a trained model explains: the fraction of the target
+variance it leaves unexplained (FVU; 1 for a model that predicts the mean, 0 for a perfect one)
+on noise-free frames of trajectory files, e.g. held-out and training data side by side. Equal
+figures on both mean the model underfits; a much lower training figure means it overfits.
+
+    python benchmarks/one_step_fvu.py data/fignet-star-movi-b-velocities.pt \
+        data/movi-b-test.h5 data/movi-b-train-4k.h5 -n 6 --frames 20 \
+        -o docs/results/one-step-fvu-velocities.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import h5py
+
+from fignetctl.core.atomic import atomic_path
+from fignetctl.core.model.checkpoint import load_checkpoint
+from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.trajectory import read_trajectories
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("model", help="a model file from `fignetctl train`")
+    parser.add_argument("data", nargs="+", help="trajectory files")
+    parser.add_argument("-n", "--trajectories", type=int, default=6, help="the first n of each file")
+    parser.add_argument("--frames", type=int, default=20, help="frames per trajectory")
+    parser.add_argument("-o", "--output", default=None, help="json to write")
+    args = parser.parse_args()
+    simulator = load_checkpoint(args.model)
+    results = {"model": args.model, "trajectories": args.trajectories, "frames": args.frames, "files": {}}
+    for path in args.data:
+        with h5py.File(path, "r") as f:  # the ids alone, without reading a large file twice
+            keys = sorted(f["trajectories"])[: args.trajectories]
+        data = read_trajectories(path, keys)
+        scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
+        figures = fraction_unexplained(
+            simulator, one_step_examples(simulator, scenes, frames_per_scene=args.frames)
+        )
+        results["files"][path] = figures
+        print(
+            f"{path}: FVU {figures['all']:.3f} (position part {figures['position']:.3f}, "
+            f"velocity part {figures.get('velocity', float('nan')):.3f}) over {figures['vertices']} vertices"
+        )
+    if args.output:
+        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
+            json.dump(results, f, indent=1)
+        print(args.output)
+
+
+if __name__ == "__main__":
+    main()

@@ -137,11 +137,12 @@ def rollout_result(
     used = set(trajectory.mesh_names)
     meshes = {name: mesh for name, mesh in data.meshes.items() if name in used}
     attrs = {
-        **({"model_sha256": simulator.source_sha256} if simulator.source_sha256 else {}),
         "source": "fignetctl rollout",
         "model_config": simulator.config.to_json(),
         "sim_scale": float(sim_scale),
     }
+    if getattr(simulator, "source_sha256", None):  # a simulator loaded from a model file
+        attrs["model_sha256"] = simulator.source_sha256
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 

@@ -26,11 +26,11 @@ import tempfile
 import numpy as np
 
 from fignetctl.core import movi
+from fignetctl.core.model.evaluation import PAPER_STEPS, rotation_errors_deg, translation_errors
 from fignetctl.core.trajectory import TrajectoryFile, estimated_velocities
 from fignetctl.errors import FignetError
 
 STATES = ("finite-difference", "velocity")
-PAPER_STEPS = 50
 SECONDS_HORIZONS = (0.1, 0.2, 0.33, 0.5, 1.0, 1.67)
 MASS_RTOL = 1e-4  # stored masses are float32; a larger mismatch means another asset or material
 
@@ -264,8 +264,6 @@ def horizon_errors(positions, quaternions, trajectory, steps: int) -> tuple:
     positions (2 + K, O, 3), quaternions (2 + K, O, 4): a rollout of `trajectory`
     returns : (N,), (N,) float64 over the dynamic objects
     """
-    from fignetctl.core.model.evaluation import rotation_errors_deg, translation_errors
-
     dynamic, frame = ~np.asarray(trajectory.static), 1 + steps
     translation = translation_errors(positions[frame, dynamic], trajectory.positions[frame, dynamic])
     rotation = rotation_errors_deg(quaternions[frame, dynamic], trajectory.quaternions[frame, dynamic])

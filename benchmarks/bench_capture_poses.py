@@ -16,7 +16,7 @@ with the ground-truth cameras:
 - wall time of the command.
 
 Video frames are compared with the true camera at their fractional orbit step
-(frame f is at view f / video_step: capture.orbit_cameras).
+(frame f is at view f / video_step: capture.ring_cameras).
 
     .venv/bin/python benchmarks/bench_capture_poses.py --out benchmarks/results/capture_poses.json
 """
@@ -126,7 +126,7 @@ def bench_images(
 def bench_video(
     capture: Path, work: Path, scene: dict, scene_size: float, height: float, every: int, matcher: str
 ) -> dict:
-    from fignetctl.core.synthetic_capture import CaptureSettings, orbit_cameras
+    from fignetctl.core.synthetic_capture import CaptureSettings, ring_cameras
 
     settings = scene["settings"]
     config = CaptureSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
@@ -148,7 +148,7 @@ def bench_video(
     frames = np.array([int(Path(str(n)).stem.split("_")[1]) for n in estimated.image_names])
     total_frames = config.views * config.video_step
     picked = len(list((output.parent / "images").glob("*.png")))
-    truth_c2w = orbit_cameras(config, frames / config.video_step)["c2w"]
+    truth_c2w = ring_cameras(config, frames / config.video_step)["c2w"]
     return {
         "input": f"video --every {every} --matcher {matcher}",
         "camera_height_m": height,

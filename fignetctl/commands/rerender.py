@@ -198,9 +198,8 @@ def _cameras(cameras_path, index, orbit, radius, elevation, orbit_frames, fov, w
     """One camera (K, c2w, width, height) per output frame."""
     import numpy as np
 
-    from fignetctl.core import rerender as core
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.nerf.rays import scale_intrinsics
+    from fignetctl.core import pinhole
 
     cameras = read_cameras(cameras_path) if cameras_path else None
     if cameras is not None and index is not None and not -len(cameras) <= index < len(cameras):
@@ -212,16 +211,16 @@ def _cameras(cameras_path, index, orbit, radius, elevation, orbit_frames, fov, w
     height = height or max(1, round(native[1] * width / native[0]))
     centre = 0.5 * (volume.lower + volume.upper)
     if cameras is None:
-        K = core.intrinsics_from_fov(width, height, fov)
+        K = pinhole.intrinsics_from_fov(width, height, fov)
     else:
-        K = scale_intrinsics(cameras.K[index or 0], width / cameras.width, height / cameras.height)
+        K = pinhole.scale_intrinsics(cameras.K[index or 0], width / cameras.width, height / cameras.height)
     if not orbit:
-        return [(K, cameras.c2w[index], width, height)] * count
+        return [pinhole.Camera(K, cameras.c2w[index], width, height)] * count
     if radius is None:
         radius = (
             float(np.median(np.linalg.norm(cameras.centres - centre, axis=1)))
             if cameras is not None
             else 4.0 * float(np.linalg.norm(volume.upper - volume.lower))
         )
-    turn = core.orbit_cameras(centre, radius, elevation, orbit_frames or count, K, width, height)
-    return [turn[i % len(turn)] for i in range(count)]
+    turn = pinhole.orbit(centre, radius, elevation, orbit_frames or count)
+    return [pinhole.Camera(K, turn[i % len(turn)], width, height) for i in range(count)]

@@ -23,6 +23,7 @@ import numpy as np
 
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_npz_document, require_regular_file
+from fignetctl.core.pinhole import Camera
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.cameras"
@@ -60,6 +61,10 @@ class Cameras:
             self, image_names=self.image_names[indices], K=self.K[indices], c2w=self.c2w[indices]
         )
 
+    def camera(self, index: int) -> Camera:
+        """The pinhole camera of view `index`."""
+        return Camera(self.K[index], self.c2w[index], self.width, self.height)
+
     def index_of(self, name: str) -> int:
         """Index of an image by its name (or by its file name without folders)."""
         names = [str(n) for n in self.image_names]
@@ -69,19 +74,6 @@ class Cameras:
         if name in stems:
             return stems.index(name)
         raise FormatError(f"no camera for image {name!r} (the cameras have {len(names)} images)")
-
-
-def look_at_c2w(eye, target) -> np.ndarray:
-    """(4, 4) OpenCV camera-to-world at `eye` looking at `target`, with world z up (image y
-    down); a camera looking straight down gets world x as its right."""
-    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right = right / np.linalg.norm(right) if np.linalg.norm(right) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    c2w = np.eye(4)
-    c2w[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    c2w[:3, 3] = eye
-    return c2w
 
 
 def validate(cameras: Cameras, where: str = "cameras") -> Cameras:

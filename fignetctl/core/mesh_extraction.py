@@ -18,6 +18,7 @@ import logging
 
 import numpy as np
 
+from fignetctl.core import pinhole
 from fignetctl.errors import FignetError
 
 log = logging.getLogger(__name__)
@@ -72,21 +73,13 @@ class ExtractionSettings:
 # -- from masks to a box -------------------------------------------------------------------------
 
 
-def unproject(depth, mask, K, c2w, pixel_offset=0.0):
-    """World points of masked pixels.
-
-    depth : (H, W) z-depth; mask : (H, W) bool; K : (3, 3); c2w : (4, 4) OpenCV
-    pixel_offset : 0 when pixel (u, v) is the ray through image point (u, v) (the NeRF's
-        convention), 0.5 for the capture's ground truth (u + 0.5, v + 0.5)
-    returns (P, 3) float64 (pixels with no finite positive depth are skipped)
-    """
+def unproject(depth, mask, K, c2w):
+    """World points (P, 3) float64 of the masked pixels of a z-depth image (H, W) (pinhole.unproject;
+    pixels with no finite positive depth are skipped)."""
     depth = np.asarray(depth, np.float64)
     valid = np.asarray(mask, bool) & np.isfinite(depth) & (depth > 0)
     v, u = np.nonzero(valid)
-    pixels = np.stack([u + pixel_offset, v + pixel_offset, np.ones_like(u, dtype=np.float64)], axis=1)
-    camera = depth[v, u, None] * (pixels @ np.linalg.inv(np.asarray(K, np.float64)).T)
-    c2w = np.asarray(c2w, np.float64)
-    return camera @ c2w[:3, :3].T + c2w[:3, 3]
+    return pinhole.unproject(K, c2w, u, v, depth[v, u])
 
 
 def robust_box(points, trim_percent=2.0):
@@ -413,7 +406,6 @@ class View:
 
     depth : (H, W) z-depth; opacity : (H, W) or None; image : (H, W, 3) uint8 RGB or None
     prompts : list of (u, v) pixels on the object; mask : (H, W) bool or None (given by the user)
-    pixel_offset : 0 for NeRF renderings (ray through (u, v)), 0.5 for the capture's GT depth
     """
 
     name: str
@@ -424,7 +416,6 @@ class View:
     image: np.ndarray | None = None
     prompts: list = dataclasses.field(default_factory=list)
     mask: np.ndarray | None = None
-    pixel_offset: float = 0.0
 
 
 def view_masks(views, segmentation_settings=None):
@@ -441,7 +432,7 @@ def view_masks(views, segmentation_settings=None):
             check_prompt(
                 u, v, width, height, view.depth, view.opacity, settings, where=f"prompt {view.name}:{u},{v}"
             )
-            mask |= prompt_mask(view.image, view.depth, view.K, u, v, settings, view.pixel_offset)
+            mask |= prompt_mask(view.image, view.depth, view.K, u, v, settings)
         view.mask = mask
     return views
 
@@ -453,7 +444,7 @@ def object_box_from_views(views, settings: ExtractionSettings):
         mask = view.mask if view.opacity is None else view.mask & (view.opacity >= 0.5)
         if not mask.any():
             raise FignetError(f"the mask of {view.name} is empty (or covers only empty space)")
-        points.append(unproject(view.depth, mask, view.K, view.c2w, view.pixel_offset))
+        points.append(unproject(view.depth, mask, view.K, view.c2w))
         names.append(view.name)
     return object_box_from_points(points, names, settings)
 
@@ -587,16 +578,11 @@ def _projects_into(points, mask, view):
 
 
 def _pixels(points, view, shape):
-    """Nearest pixel (u, v) of each world point in the view, and whether it is in front of the
+    """The pixel (u, v) of each world point in the view, and whether it is in front of the
     camera and inside an image of `shape` (H, W)."""
-    c2w = np.asarray(view.c2w, np.float64)
-    camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
-    image = camera @ np.asarray(view.K, np.float64).T
-    ahead = camera[:, 2] > 1e-9
-    z = np.where(ahead, camera[:, 2], 1.0)
-    u = np.round(image[:, 0] / z - view.pixel_offset).astype(np.int64)
-    v = np.round(image[:, 1] / z - view.pixel_offset).astype(np.int64)
-    return u, v, ahead & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    image, depth = pinhole.project(view.K, view.c2w, points)
+    u, v = pinhole.pixel_of(image).T
+    return u, v, (depth > 1e-9) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
 
 
 def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None):

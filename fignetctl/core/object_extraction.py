@@ -103,9 +103,7 @@ def _view(index, cameras, model, depth_images, image_dir, need_image):
     name = str(cameras.image_names[index])
     image = _read_image(image_dir / name, cameras) if need_image else None
     if depth_images is not None:
-        return View(
-            name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image, pixel_offset=0.5
-        )
+        return View(name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image)
     rendering = model.render(cameras, index)
     depth = np.where(rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0)
     return View(name, cameras.K[index], cameras.c2w[index], depth, rendering.opacity, image)

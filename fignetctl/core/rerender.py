@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.cameras import look_at_c2w
+from fignetctl.core.pinhole import PIXEL_CENTRE, Camera
 from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.core.volume import Volume
 from fignetctl.errors import FignetError
@@ -288,7 +288,7 @@ class Rerenderer:
         key = _camera_key(camera)
         if key not in self._backgrounds:
             started = time.perf_counter()
-            origins, directions = _camera_rays(camera)
+            origins, directions = Camera(*camera).rays()
             self._backgrounds[key] = render_rays(self.model, origins, directions)
             self.background_seconds.append(time.perf_counter() - started)
         return self._backgrounds[key]
@@ -298,7 +298,7 @@ class Rerenderer:
         background = self.background(camera)
         started = time.perf_counter()
         width, height = int(camera[2]), int(camera[3])
-        origins, directions = _camera_rays(camera)
+        origins, directions = Camera(*camera).rays()
         bent = bent_rays(origins, directions, self.motion, t, self.volume, self.mode)
         images = {key: value.copy() for key, value in background.items()}
         if bent.any():
@@ -317,14 +317,6 @@ class Rerenderer:
         )
 
 
-def _camera_rays(camera):
-    from fignetctl.core.nerf.rays import pixel_rays
-
-    K, c2w, width, height = camera
-    origins, directions = pixel_rays(K, c2w, int(width), int(height))
-    return origins.reshape(-1, 3), directions.reshape(-1, 3)
-
-
 def _camera_key(camera):
     K, c2w, width, height = camera
     return (
@@ -338,56 +330,15 @@ def _camera_key(camera):
 # ----------------------------------------------------------------------------- cameras
 
 
-def orbit_cameras(
-    centre,
-    radius: float,
-    elevation_deg: float,
-    count: int,
-    K,
-    width: int,
-    height: int,
-    azimuth_deg: float = 0.0,
-) -> list:
-    """`count` cameras (K, c2w, width, height) on a circle around `centre`, one turn, looking at it."""
-    elevation = np.radians(elevation_deg)
-    cameras = []
-    for azimuth in np.radians(azimuth_deg) + 2 * np.pi * np.arange(count) / max(count, 1):
-        offset = radius * np.array(
-            [np.cos(azimuth) * np.cos(elevation), np.sin(azimuth) * np.cos(elevation), np.sin(elevation)]
-        )
-        cameras.append(
-            (
-                np.asarray(K, np.float64),
-                look_at_c2w(np.asarray(centre) + offset, centre),
-                int(width),
-                int(height),
-            )
-        )
-    return cameras
-
-
-def intrinsics_from_fov(width: int, height: int, fov_y_deg: float) -> np.ndarray:
-    """(3, 3) K with square pixels, principal point at the image centre (pixel centres at integers)."""
-    focal = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2.0)
-    return np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def project(camera, points) -> tuple:
-    """World points (N, 3) -> pixels (N, 2) and z-depths (N,) of camera (K, c2w, width, height)."""
-    K, c2w = np.asarray(camera[0], np.float64), np.asarray(camera[1], np.float64)
-    local = (np.asarray(points, np.float64) - c2w[:3, 3]) @ c2w[:3, :3]
-    depth = local[:, 2]
-    pixels = local @ K.T
-    return pixels[:, :2] / np.where(np.abs(depth) > 1e-9, depth, 1e-9)[:, None], depth
-
-
 def draw_trace(image, camera, positions, colour=(255, 210, 0)):
     """Draw the object's path so far (world positions (n, 3)) on an RGB uint8 image, in place."""
     import cv2
 
-    pixels, depth = project(camera, positions)
+    pixels, depth = Camera(*camera).project(positions)
     front = depth > 1e-6
-    points = np.round(pixels[front] * 16).astype(np.int32)  # 4 bits of sub-pixel precision
+    points = np.round((pixels[front] - PIXEL_CENTRE) * 16).astype(
+        np.int32
+    )  # 4 fractional bits; OpenCV's pixel centres are at integers
     thickness = max(1, int(round(image.shape[0] / 240)))
     if len(points) > 1:
         cv2.polylines(image, [points.reshape(-1, 1, 2)], False, colour, thickness, cv2.LINE_AA, shift=4)

@@ -15,6 +15,7 @@ import dataclasses
 
 import numpy as np
 
+from fignetctl.core.pinhole import camera_frame_points
 from fignetctl.errors import FignetError
 
 
@@ -50,14 +51,6 @@ def check_prompt(u, v, width, height, depth, opacity=None, settings=Segmentation
         raise FignetError(f"{where}: pixel ({u}, {v}) is on empty space (no density along its ray)")
 
 
-def camera_points(depth, K, pixel_offset=0.0):
-    """(H, W) z-depth -> (H, W, 3) camera-frame points."""
-    height, width = depth.shape
-    u, v = np.meshgrid(np.arange(width) + pixel_offset, np.arange(height) + pixel_offset)
-    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(np.asarray(K, np.float64)).T
-    return rays * np.asarray(depth, np.float64)[..., None]
-
-
 def depth_connected(depth, seed, max_jump):
     """(H, W) bool: pixels reachable from `seed` (v, u) through 4-neighbours whose depths
     differ by less than `max_jump` (relative)."""
@@ -72,7 +65,7 @@ def depth_connected(depth, seed, max_jump):
     return mask[1:-1, 1:-1].astype(bool)
 
 
-def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings(), pixel_offset=0.0):
+def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings()):
     """The object's mask at prompt (u, v).
 
     image : (H, W, 3) uint8 RGB; depth : (H, W) z-depth; K : (3, 3)
@@ -80,7 +73,7 @@ def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings(), pixel_of
     """
     import cv2
 
-    points = camera_points(depth, K, pixel_offset)
+    points = camera_frame_points(depth, K)
     distance = np.linalg.norm(points - points[v, u], axis=-1)
     distance[~np.isfinite(distance)] = np.inf
     near = depth_connected(depth, (v, u), settings.depth_jump) & (distance < 0.5 * settings.max_size)

@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fignetctl.core import pinhole
 from fignetctl.errors import FignetError
 
 log = logging.getLogger(__name__)
@@ -207,7 +208,7 @@ def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
         with tempfile.TemporaryDirectory(prefix="fignetctl-textures-") as texture_dir:
             objects = build_scene(client, config, Path(texture_dir))
         build_seconds = time.perf_counter() - start
-        cameras = orbit_cameras(config, np.arange(config.views, dtype=float))
+        cameras = ring_cameras(config, np.arange(config.views, dtype=float))
         renders, render_seconds = _render_views(client, config, cameras, progress)
         video_frames = 0
         if config.video:
@@ -531,7 +532,7 @@ def look_at_point() -> np.ndarray:
     return np.array([0.0, 0.0, 0.04])
 
 
-def orbit_cameras(config: CaptureSettings, steps: np.ndarray):
+def ring_cameras(config: CaptureSettings, steps: np.ndarray):
     """Cameras at fractional view indices `steps` (N,) on the closed wavy ring, as a dict:
     eyes (N,3), K (3,3), c2w (N,4,4) OpenCV, views (N PyBullet view matrices), projection."""
     import pybullet as p
@@ -607,7 +608,7 @@ def _write_video(client, config, path: Path, progress) -> int:
     from fignetctl.core.media import Mp4Writer
 
     steps = np.arange(config.views * config.video_step) / config.video_step
-    cameras = orbit_cameras(config, steps)
+    cameras = ring_cameras(config, steps)
     with Mp4Writer(path, config.video_fps, config.width, config.height) as writer:
         for view in progress(cameras["views"], desc="video", unit="frame"):
             rgb, _, _ = render_one(client, config, view, cameras["projection"])
@@ -667,22 +668,6 @@ def _write_views(folder: Path, config, objects, cameras, renders) -> list[str]:
     return names
 
 
-def unproject(depth: np.ndarray, K: np.ndarray, c2w: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """World points of `pixels` (P,2) (u, v) of one view with z-depth (H,W): (P,3)."""
-    z = depth[pixels[:, 1], pixels[:, 0]].astype(np.float64)
-    x = (pixels[:, 0] + 0.5 - K[0, 2]) / K[0, 0] * z
-    y = (pixels[:, 1] + 0.5 - K[1, 2]) / K[1, 1] * z
-    camera = np.stack([x, y, z], axis=1)
-    return camera @ c2w[:3, :3].T + c2w[:3, 3]
-
-
-def project(points: np.ndarray, K: np.ndarray, c2w: np.ndarray):
-    """World points (P,3) -> pixel coordinates (P,2) (continuous, pixel centres at +0.5) and z (P,)."""
-    camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
-    uv = camera @ K.T
-    return uv[:, :2] / uv[:, 2:3], camera[:, 2]
-
-
 def sample_points(depth, masks, rgb, K, c2w, count, seed):
     """`count` points spread over all views' visible surfaces, with their colours."""
     rng = np.random.default_rng(seed + 1)
@@ -690,9 +675,9 @@ def sample_points(depth, masks, rgb, K, c2w, count, seed):
     chosen = valid[rng.choice(len(valid), size=min(count, len(valid)), replace=False)]
     points, colors = [], []
     for view in np.unique(chosen[:, 0]):
-        pixels = chosen[chosen[:, 0] == view][:, [2, 1]]
-        points.append(unproject(depth[view], K, c2w[view], pixels))
-        colors.append(rgb[view, pixels[:, 1], pixels[:, 0]])
+        v, u = chosen[chosen[:, 0] == view][:, 1:].T
+        points.append(pinhole.unproject(K, c2w[view], u, v, depth[view, v, u]))
+        colors.append(rgb[view, v, u])
     return np.concatenate(points), np.concatenate(colors).astype(np.uint8)
 
 

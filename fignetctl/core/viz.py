@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from fignetctl.core import pinhole
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.pinhole import Camera
 from fignetctl.core.trajectory import Trajectory, TrajectoryFile
 from fignetctl.core.trajectory_summary import energies, lowest_vertex_heights
 from fignetctl.core.transforms import quat_to_matrix
@@ -70,42 +72,16 @@ def _get_trajectory(data: TrajectoryFile, trajectory_id) -> Trajectory:
 # ----------------------------------------------------------------------------- camera
 
 
-@dataclasses.dataclass(frozen=True)
-class Camera:
-    """A pinhole camera in the OpenCV convention (x right, y down, z forward).
-
-    rotation : (3, 3) world-to-camera rotation (rows: right, down, forward)
-    eye : (3,) camera centre in world coordinates
-    focal : focal length in pixels (square pixels, principal point at the image centre)
-    width, height : image size in pixels
-    """
-
-    rotation: np.ndarray
-    eye: np.ndarray
-    focal: float
-    width: int
-    height: int
-
-    def project(self, points: np.ndarray) -> tuple:
-        """points : (N, 3) world -> (N, 2) float pixels and (N,) depths along the view axis."""
-        camera_points = (np.asarray(points, np.float64) - self.eye) @ self.rotation.T
-        depth = camera_points[:, 2]
-        safe = np.where(depth > NEAR_PLANE, depth, NEAR_PLANE)
-        pixels = self.focal * camera_points[:, :2] / safe[:, None]
-        return pixels + np.array([self.width / 2.0, self.height / 2.0]), depth
-
-
 def look_at_camera(eye, target, size, fov_y_deg: float = 40.0) -> Camera:
     """A camera at `eye` looking at `target` with z up; size = (width, height)."""
-    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    if np.linalg.norm(right) < 1e-9:  # looking straight down: any horizontal right
-        right = np.array([1.0, 0.0, 0.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    focal = 0.5 * size[1] / math.tan(math.radians(fov_y_deg) / 2.0)
-    return Camera(np.stack([right, down, forward]), eye, focal, int(size[0]), int(size[1]))
+    K = pinhole.intrinsics_from_fov(size[0], size[1], fov_y_deg)
+    return Camera(K, pinhole.look_at(eye, target), int(size[0]), int(size[1]))
+
+
+def _fixed_point(image_points: np.ndarray) -> np.ndarray:
+    """Image points -> OpenCV drawing coordinates with 4 fractional bits (shift=4); OpenCV puts
+    pixel centres at integers, pinhole at +0.5."""
+    return np.round((image_points - pinhole.PIXEL_CENTRE) * 16).astype(np.int32)
 
 
 def fit_camera(
@@ -294,7 +270,7 @@ class PreviewRenderer:
             points[:, 2] = self.floor_z
             pixels, depth = self.camera.project(points)
             if (depth > NEAR_PLANE).all():
-                hull = cv2.convexHull(np.round(pixels * 16).astype(np.int32))
+                hull = cv2.convexHull(_fixed_point(pixels))
                 cv2.fillConvexPoly(image, hull, SHADOW_COLOUR, cv2.LINE_AA, 4)
 
     def _draw_triangles(self, image: np.ndarray, world: np.ndarray) -> None:
@@ -304,7 +280,7 @@ class PreviewRenderer:
             return
         pixels, depth = self.camera.project(world)
         chosen, brightness = self._visible_faces(world, depth)
-        polygons = np.round(pixels[self.meshes.faces[chosen]] * 16).astype(np.int32)  # 4 fractional bits
+        polygons = _fixed_point(pixels[self.meshes.faces[chosen]])
         colours = np.clip(self.meshes.face_colours[chosen] * brightness[:, None], 0, 255).astype(int).tolist()
         for polygon, colour in zip(polygons, colours):
             cv2.fillConvexPoly(image, polygon, colour, cv2.LINE_AA, 4)
@@ -325,7 +301,7 @@ class PreviewRenderer:
         pixels, depth = self.camera.project(points)
         if (depth <= NEAR_PLANE).any():
             return
-        pixels = np.round(pixels * 16).astype(np.int32)
+        pixels = _fixed_point(pixels)
         if fill:
             cv2.fillConvexPoly(image, pixels, colour, cv2.LINE_AA, 4)
         else:

@@ -4,8 +4,9 @@ import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import cli
-from fignetctl.core import rerender
-from fignetctl.core.cameras import Cameras, look_at_c2w, write_cameras
+from fignetctl.core import pinhole, rerender
+from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.pinhole import look_at
 from fignetctl.core.media import read_video_info
 from fignetctl.core.nerf import save_nerf
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
@@ -48,7 +49,7 @@ def inputs(tmp_path_factory):
     write_volume(folder / "volume.npz", lower=BOX_LOWER - 0.05, upper=BOX_UPPER + 0.05, origin=REST)
     write_trajectories(folder / "rollout.h5", box_rollout())
     K, c2w, width, height = top_camera(size=32, focal=40.0)
-    side = look_at_c2w([2.5, 0.5, 1.5], [0, 0, -0.4])
+    side = look_at([2.5, 0.5, 1.5], [0, 0, -0.4])
     write_cameras(
         folder / "cameras.npz",
         Cameras(np.array(["top.png", "side.png"]), np.stack([K, K]), np.stack([c2w, side]), width, height),
@@ -87,8 +88,8 @@ def test_fixed_camera_writes_frames_and_video(inputs, tmp_path):
     assert first.shape == (32, 32, 3)
     camera = top_camera(size=32, focal=40.0)
     for image, centre in ((first, REST), (last, REST + 3 * np.array([0.15, 0.1, 0.05]))):
-        pixels, _ = rerender.project(camera, centre[None])
-        u, v = np.round(pixels[0]).astype(int)
+        pixels, _ = camera.project(centre[None])
+        u, v = pinhole.pixel_of(pixels)[0]
         assert image[v, u, 0] > 200 and image[v, u, 1] < 60  # the red box where the rollout puts it
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary leftovers
 

@@ -4,8 +4,10 @@ holds that field as its density grid."""
 
 import numpy as np
 
+from fignetctl.core import pinhole
 
-def carved_density(depth, cameras, tolerance=0.004, pixel_offset=0.5):
+
+def carved_density(depth, cameras, tolerance=0.004):
     """density(points (P, 3)) -> (P,): 1000 where every view that sees the point sees it at or
     behind its GT surface (within `tolerance`), else 0. depth : (N, H, W) z-depth."""
 
@@ -13,11 +15,8 @@ def carved_density(depth, cameras, tolerance=0.004, pixel_offset=0.5):
         points = np.asarray(points, np.float64).reshape(-1, 3)
         solid = np.ones(len(points), bool)
         for K, c2w, z_image in zip(cameras.K, cameras.c2w, depth):
-            camera = (points - c2w[:3, 3]) @ c2w[:3, :3]
-            z = camera[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u = np.floor(K[0, 0] * camera[:, 0] / z + K[0, 2] - pixel_offset + 0.5).astype(np.int64)
-                v = np.floor(K[1, 1] * camera[:, 1] / z + K[1, 2] - pixel_offset + 0.5).astype(np.int64)
+            image, z = pinhole.project(K, c2w, points)
+            u, v = pinhole.pixel_of(image).T
             seen = (z > 0) & (u >= 0) & (u < z_image.shape[1]) & (v >= 0) & (v < z_image.shape[0])
             surface = np.full(len(points), np.inf)
             surface[seen] = z_image[v[seen], u[seen]]

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.cameras import Cameras, look_at_c2w
+from fignetctl.core.cameras import Cameras
+from fignetctl.core.pinhole import look_at
 
 
 def ring_cameras(count, radius=0.8, height=0.5, jitter=0.0, arc_deg=360.0, seed=0) -> np.ndarray:
@@ -20,7 +21,7 @@ def ring_cameras(count, radius=0.8, height=0.5, jitter=0.0, arc_deg=360.0, seed=
     for angle in angles:
         eye = np.array([radius * np.cos(angle), radius * np.sin(angle), height]) + rng.normal(0, jitter, 3)
         target = np.array([0.0, 0.0, 0.05]) + rng.normal(0, jitter, 3)
-        c2w.append(look_at_c2w(eye, target))
+        c2w.append(look_at(eye, target))
     return np.array(c2w)
 
 

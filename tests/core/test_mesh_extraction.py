@@ -71,7 +71,7 @@ def test_empty_volume_and_bad_threshold_fail_clearly():
 
 
 def test_unproject_and_robust_box():
-    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    K = np.array([[100.0, 0, 50.5], [0, 100.0, 40.5], [0, 0, 1]])  # pixel (50, 40) on the optical axis
     c2w = np.eye(4)
     depth = np.full((80, 100), 2.0)
     mask = np.zeros((80, 100), bool)
@@ -138,9 +138,7 @@ def test_prompt_masks_match_ground_truth(tiny_capture):
         for point in obj["points"]:
             index = cameras.index_of(point["image"])
             image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
-            mask = prompt_mask(
-                image, depth[index], cameras.K[index], point["u"], point["v"], pixel_offset=0.5
-            )
+            mask = prompt_mask(image, depth[index], cameras.K[index], point["u"], point["v"])
             scores.append(iou(mask, truth[index] == obj["id"]))
     assert np.median(scores) >= 0.85 and min(scores) >= 0.5, scores
 
@@ -182,7 +180,7 @@ def projected_mask(points, view, shape=(120, 160)):
 
 
 def test_the_visual_hull_cuts_what_one_mask_took_too_much():
-    from fignetctl.core.cameras import look_at_c2w
+    from fignetctl.core.pinhole import look_at
 
     rng = np.random.default_rng(0)
     cube = rng.uniform(-0.05, 0.05, (20000, 3)) + [0, 0, 0.05]
@@ -193,7 +191,7 @@ def test_the_visual_hull_cuts_what_one_mask_took_too_much():
     views = []
     for index, azimuth in enumerate(np.radians([200, 290, 20])):
         eye = [0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45]
-        view = mx.View(f"v{index}", K, look_at_c2w(eye, [0, 0, 0.05]), np.ones((120, 160)))
+        view = mx.View(f"v{index}", K, look_at(eye, [0, 0, 0.05]), np.ones((120, 160)))
         # the first view's mask also takes in the piece of wall beside the cube
         view.mask = projected_mask(np.concatenate([cube, wall_piece]) if index == 0 else cube, view)
         views.append(view)
@@ -243,7 +241,7 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
     """The object's base, left out of the splat (hull_mask_clearance), is filled in from colour."""
     import cv2
 
-    from fignetctl.core.cameras import look_at_c2w
+    from fignetctl.core.pinhole import look_at
     from fignetctl.core.segmentation import iou
 
     rng = np.random.default_rng(1)
@@ -257,7 +255,7 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
         view = mx.View(
             f"v{index}",
             K,
-            look_at_c2w([0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45], [0, 0, 0.05]),
+            look_at([0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45], [0, 0, 0.05]),
             np.ones((120, 160)),
         )
         truth = projected_mask(cube, view)

@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.cameras import Cameras, look_at_c2w, write_cameras
+from fignetctl.core.cameras import Cameras, write_cameras
+from fignetctl.core.pinhole import look_at
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
-from fignetctl.core.nerf.rays import pixel_rays, scale_intrinsics, scene_bounds
+from fignetctl.core.nerf.rays import scene_bounds
+from fignetctl.core.pinhole import pixel_rays
 from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
 from fignetctl.core.nerf.training import make_trainer
 from fignetctl.errors import FignetError, FormatError
@@ -52,9 +54,7 @@ class ConstantBox:
 def orbit(n=8, radius=3.0, width=32, height=24, focal=30.0):
     K = np.array([[focal, 0, (width - 1) / 2], [0, focal, (height - 1) / 2], [0, 0, 1.0]])
     c2w = [
-        look_at_c2w(
-            (radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a)), (0.0, 0.0, 0.0)
-        )
+        look_at((radius * math.cos(a), radius * math.sin(a), 1.2 + 0.4 * math.sin(3 * a)), (0.0, 0.0, 0.0))
         for a in np.linspace(0, 2 * math.pi, n, endpoint=False)
     ]
     return np.repeat(K[None], n, 0), np.array(c2w)
@@ -135,13 +135,13 @@ def test_opaque_box_depth_is_its_face_and_misses_are_background():
 def test_grid_box_renders_z_depth_of_its_face_for_a_camera():
     model = solid_box_model()
     width, height = 33, 25
-    K = np.array([[20.0, 0, 16], [0, 20.0, 12], [0, 0, 1]])
-    c2w = look_at_c2w((0.0, -3.0, 0.0), (0.0, 0.0, 0.0))
+    K = np.array([[20.0, 0, 16.5], [0, 20.0, 12.5], [0, 0, 1]])  # pixel (16, 12) on the optical axis
+    c2w = look_at((0.0, -3.0, 0.0), (0.0, 0.0, 0.0))
     rendering = model.render((K, c2w, width, height))
     voxel = 2.0 / 23
     # Centre pixel: the face y = -0.5 is at z-depth 2.5; off-centre pixels see the same plane.
     assert rendering.depth[12, 16] == pytest.approx(2.5, abs=voxel)
-    assert rendering.depth[12, 20] == pytest.approx(2.5, abs=voxel)
+    assert rendering.depth[12, 19] == pytest.approx(2.5, abs=voxel)
     assert rendering.opacity[12, 16] > 0.99 and rendering.opacity[0, 0] < 1e-3 and rendering.depth[0, 0] == 0
     assert rendering.rgb.shape == (height, width, 3) and rendering.depth.shape == (height, width)
 
@@ -168,12 +168,6 @@ def test_identity_warp_equals_no_warp_and_a_shift_moves_the_box():
     for key in plain:
         assert torch.allclose(plain[key], warped[key])
     assert not torch.allclose(plain["opacity"], shifted["opacity"])
-
-
-def test_scaled_intrinsics_keep_the_ray_through_the_same_image_point():
-    K = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])  # 64x48, centre at (31.5, 23.5)
-    half = scale_intrinsics(K, 0.5, 0.5)
-    assert half[0, 2] == pytest.approx(15.5) and half[0, 0] == pytest.approx(25.0)
 
 
 def test_scene_bounds_cover_points_and_stop_at_surrounding_cameras():

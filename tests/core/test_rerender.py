@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from fignetctl.core import rerender
-from fignetctl.core.cameras import look_at_c2w
+from fignetctl.core.pinhole import Camera, look_at
+from fignetctl.core.pinhole import pixel_of as pixel_of_point
 from fignetctl.core.nerf import NerfConfig, NerfModel
 from fignetctl.core.transforms import quat_from_axis_angle
 from fignetctl.core.volume import Volume
@@ -48,8 +49,8 @@ def solid_field(resolution=41):
 
 def top_camera(size=48, focal=60.0):
     """(K, c2w, width, height) above the scene looking straight down (image x = world x, image v = -y)."""
-    K = np.array([[focal, 0, (size - 1) / 2], [0, focal, (size - 1) / 2], [0, 0, 1.0]])
-    return K, look_at_c2w([0, 0, CAMERA_HEIGHT], [0, 0, 0]), size, size
+    K = np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1.0]])
+    return Camera(K, look_at([0, 0, CAMERA_HEIGHT], [0, 0, 0]), size, size)
 
 
 def motion_of(positions, quaternions=None, origin=None):
@@ -75,8 +76,8 @@ REST = 0.5 * (BOX_LOWER + BOX_UPPER)
 
 
 def pixel_of(camera, point):
-    pixels, _ = rerender.project(camera, np.asarray(point, np.float64)[None])
-    u, v = np.round(pixels[0]).astype(int)
+    pixels, _ = camera.project(np.asarray(point, np.float64)[None])
+    u, v = pixel_of_point(pixels)[0]
     return v, u
 
 
@@ -153,7 +154,7 @@ def test_bent_pixels_are_exactly_those_whose_rays_meet_a_box(field):
     motion = motion_of([REST + [0.5, 0.4, 0.0]])
     frame = rerender.Rerenderer(field, VOLUME, motion, "move").render(camera, 0)
     # Independent reference: dense points along every ray, inside either box.
-    origins, directions = rerender._camera_rays(camera)
+    origins, directions = camera.rays()
     t = np.linspace(2.0, 4.5, 1001)
     points = origins[:, None] + t[None, :, None] * directions[:, None]
     in_box = lambda p: ((p >= VOLUME.lower) & (p <= VOLUME.upper)).all(-1)  # noqa: E731

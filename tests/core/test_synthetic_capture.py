@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 
+from fignetctl.core import pinhole
 from fignetctl.core import synthetic_capture as capture
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.media import read_video_info
@@ -85,13 +86,13 @@ def test_object_meshes_project_onto_their_masks(tiny_capture):
             if len(rows) == 0:
                 continue
             seen += 1
-            uv, z = capture.project(vertices, cameras.K[view], cameras.c2w[view])
+            uv, z = pinhole.project(cameras.K[view], cameras.c2w[view], vertices)
             low, high = uv.min(0) - 0.5, uv.max(0) - 0.5  # pixel (u, v) is the point (u+0.5, v+0.5)
             assert (z > 0).all()
             assert low[0] - 1 <= columns.min() and columns.max() <= high[0] + 1
             assert low[1] - 1 <= rows.min() and rows.max() <= high[1] + 1
-            points = capture.unproject(
-                depth[view], cameras.K[view], cameras.c2w[view], np.stack([columns, rows], 1)
+            points = pinhole.unproject(
+                cameras.K[view], cameras.c2w[view], columns, rows, depth[view, rows, columns]
             )
             assert np.all((points >= np.min(vertices, 0) - 0.01) & (points <= np.max(vertices, 0) + 0.01))
         assert seen >= 2, item["name"]

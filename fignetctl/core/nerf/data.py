@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from fignetctl.core.cameras import Cameras, check_images_match
-from fignetctl.core.nerf.rays import pixel_rays, scale_intrinsics
+from fignetctl.core.pinhole import pixel_rays, scale_intrinsics
 from fignetctl.errors import FignetError, FormatError
 
 

@@ -10,7 +10,7 @@ from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.field import GridField, OccupancyGrid
-from fignetctl.core.nerf.rays import pixel_rays
+from fignetctl.core.pinhole import pixel_rays
 from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
 from fignetctl.errors import FignetError
 

@@ -1,9 +1,8 @@
-"""Rays of pinhole cameras (OpenCV convention) and the scene box.
+"""Ray–box intersection and the scene box of posed cameras.
 
-Pixel (u, v) has its centre at integer coordinates (OpenCV), so a pixel's ray direction is
-d = R · K⁻¹ · (u, v, 1): its z component in the camera frame is 1, and a point o + t·d along it
-lies at z-depth t. Ray parameters returned by the renderer are therefore z-depths for these rays,
-and x = z · K⁻¹ · (u, v, 1) unprojects a depth image (DESIGN.md, perception).
+The rays themselves come from `core.pinhole.pixel_rays` (pixel centres at +0.5, camera-frame z
+of each direction 1), so the renderer's ray parameters are z-depths and a rendered depth image
+unprojects with `pinhole.unproject` (DESIGN.md, perception).
 """
 
 from __future__ import annotations
@@ -12,34 +11,6 @@ import numpy as np
 import torch
 
 from fignetctl.errors import FignetError
-
-
-def pixel_rays(K, c2w, width: int, height: int):
-    """Rays through every pixel centre of one camera.
-
-    K : (3, 3), c2w : (4, 4) OpenCV camera-to-world
-    returns origins (H, W, 3), directions (H, W, 3) float64, with camera-frame z of each direction 1
-    """
-    K, c2w = np.asarray(K, np.float64), np.asarray(c2w, np.float64)
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    pixels = np.stack([u, v, np.ones_like(u)], axis=-1)
-    directions_camera = pixels @ np.linalg.inv(K).T
-    directions = directions_camera @ c2w[:3, :3].T
-    origins = np.broadcast_to(c2w[:3, 3], directions.shape).copy()
-    return origins, directions
-
-
-def scale_intrinsics(K, scale_x: float, scale_y: float):
-    """K of an image resized by (scale_x, scale_y), pixel centres at integers.
-
-    K : (..., 3, 3)
-    """
-    K = np.array(K, np.float64)
-    K[..., 0, 0] *= scale_x
-    K[..., 1, 1] *= scale_y
-    K[..., 0, 2] = (K[..., 0, 2] + 0.5) * scale_x - 0.5
-    K[..., 1, 2] = (K[..., 1, 2] + 0.5) * scale_y - 0.5
-    return K
 
 
 def ray_box_intersection(origins, directions, low, high):

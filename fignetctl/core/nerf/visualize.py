@@ -34,7 +34,7 @@ def write_png(path, rgb) -> None:
 
 def render_views_to_folder(model, cameras, indices, folder, scale=None) -> list:
     """<name>.png, <name>_depth.png, <name>_depth.npy (float32 z-depth) per view index."""
-    from fignetctl.core.nerf.rays import scale_intrinsics
+    from fignetctl.core.pinhole import scale_intrinsics
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

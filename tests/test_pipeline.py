@@ -57,3 +57,36 @@ def test_the_main_job_runs_every_stage_and_leaves_its_files(tmp_path):
     assert (scene / "video.mp4").stat().st_size > 1000
     assert len(list((scene / "video_frames").glob("*.png"))) == 3
     assert (scene / "pipeline.rrd").stat().st_size > 0
+    check_provenance(scene)
+
+
+def check_provenance(scene):
+    """Every stage's output carries this fignetctl's version and the hashes of the files it was
+    made from (provenance.py), which are the files the stage before it left."""
+    from fignetctl import __version__
+    from fignetctl.core.model.checkpoint import bundled_model_path
+    from fignetctl.core.provenance import path_sha256, read_provenance
+
+    capture, cameras, nerf = scene / "capture", scene / "cameras.npz", scene / "nerf.pt"
+    volume, scene_file = scene / "object" / "volume.npz", scene / "scene.h5"
+    expected = {
+        capture / "ground_truth" / "scene.json": {},
+        cameras: {"images": capture / "images"},
+        nerf: {"images": capture / "images", "cameras": cameras},
+        volume: {
+            "nerf": nerf,
+            "cameras": cameras,
+            "prompts": capture / "prompts.json",
+            "images": capture / "images",
+        },
+        scene_file: {
+            "volume": volume,
+            "object": scene / "object" / "object.obj",
+            "environment": scene / "object" / "environment.obj",
+        },
+        scene / "rollout.h5": {"scene": scene_file, "model": bundled_model_path()},
+    }
+    for output, inputs in expected.items():
+        found = read_provenance(output)
+        assert found["fignetctl_version"] == __version__, output
+        assert found["inputs_sha256"] == {role: path_sha256(path) for role, path in inputs.items()}, output

@@ -105,6 +105,7 @@ def bench_memory(
 
     from fignetctl.bench import memory as benchmark
     from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.provenance import stamp
 
     if model_paths and (size or max_faces is not None or collision_radius):
         raise click.UsageError(
@@ -130,6 +131,12 @@ def bench_memory(
         )
     with options.progress(total=samples * len(data), unit="pair", desc="bench-memory") as bar:
         result = benchmark.run_benchmark(data, simulators, config, on_pair=lambda: bar.update(1))
+    result.update(
+        stamp(
+            **{f"data_{i}": p for i, p in enumerate(data)},
+            **{f"model_{i}": p for i, p in enumerate(model_paths)},
+        )
+    )
     report = benchmark.markdown_report(result)
     for name, text in (("--json", json.dumps(result, indent=1)), ("--markdown", report)):
         if name in outputs:

@@ -119,6 +119,7 @@ def build_graph(
       fignetctl rollout scene.h5 --steps 60 -o rollout.h5
     """
     from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.provenance import as_strings, stamp
     from fignetctl.core.scene_building import Properties, build_scene, drop_history
     from fignetctl.core.trajectory import write_trajectories
     from fignetctl.core.volume import read_volume
@@ -140,6 +141,12 @@ def build_graph(
         volume.environment_origin,
         dt,
     )
+    provenance = stamp(
+        volume=volume_path,
+        object=object_path or folder / volume.object_mesh,
+        environment=environment_path or folder / volume.environment_mesh,
+    )
+    scene.attrs.update(as_strings(provenance))
     write_trajectories(path, scene)
     click.echo(
         f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}",

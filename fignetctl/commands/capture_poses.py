@@ -177,7 +177,11 @@ def capture_poses(
         else:
             cameras = sfm.run_sfm(images_dir, settings=settings)
         aligned, alignment = world_alignment.align(cameras, alignment_settings)
-        write_cameras(output, aligned)
+        write_cameras(
+            output,
+            aligned,
+            _provenance(images_dir, video_path, import_transforms, import_colmap, import_cameras),
+        )
         if staged is not None:
             staged.commit()
     finally:
@@ -239,3 +243,11 @@ def _summary(cameras, alignment) -> str:
         )
         + f"; scale from {alignment.scale_source}"
     )
+
+
+def _provenance(images_dir, video_path, import_transforms, import_colmap, import_cameras) -> dict:
+    """The stamp of cameras.npz: the video or images it was made from, and any imported poses."""
+    from fignetctl.core.provenance import stamp
+
+    source = {"video": video_path} if video_path is not None else {"images": images_dir}
+    return stamp(**source, transforms=import_transforms, colmap=import_colmap, cameras=import_cameras)

@@ -78,6 +78,7 @@ def evaluate(
     import json
 
     from fignetctl.core.model.runs import evaluate_file, load_model
+    from fignetctl.core.provenance import INPUTS_KEY, stamp
 
     path = options.output_path(output, overwrite) if output else None
     simulator = load_model(model_path, options.resolve_device(device))
@@ -94,6 +95,8 @@ def evaluate(
             ceilings=ceilings,
         )
     metrics["model"] = str(model_path or "fignet-star-movi-b")
+    metrics.update(stamp(data=data))
+    metrics[INPUTS_KEY]["model"] = simulator.source_sha256
     text = json.dumps(metrics, indent=2)
     if path is None:
         click.echo(text)

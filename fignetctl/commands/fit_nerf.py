@@ -84,6 +84,7 @@ def fit_nerf(
     from fignetctl.core.nerf.config import preset_config
     from fignetctl.core.nerf.data import inputs_hash
     from fignetctl.core.nerf.training import finish, make_trainer
+    from fignetctl.core.provenance import stamp
 
     if resume and overwrite:
         raise click.UsageError("--resume continues --output, --overwrite replaces it: give one")
@@ -104,6 +105,7 @@ def fit_nerf(
     trainer = make_trainer(
         images_dir, camera_set, config, device, path if resume and path.exists() else None, data_hash
     )
+    trainer.provenance = stamp(images=images_dir, cameras=cameras)
     with options.progress(
         total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
     ) as bar:

@@ -55,6 +55,7 @@ def show(path, trajectory_id, json_path, video_path, png_path, frame, rerun_path
 
     from fignetctl.core import trajectory_summary, viz
     from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.provenance import stamp
     from fignetctl.core.trajectory import read_trajectories
 
     flags = {"--json": json_path, "--video": video_path, "--png": png_path, "--rerun": rerun_path}
@@ -65,7 +66,7 @@ def show(path, trajectory_id, json_path, video_path, png_path, frame, rerun_path
     click.echo(trajectory_summary.format_summary(summary), nl=False)
     if "--json" in outputs:
         with atomic_path(outputs["--json"]) as tmp:
-            tmp.write_text(json.dumps(summary, indent=1) + "\n")
+            tmp.write_text(json.dumps({**summary, **stamp(trajectories=path)}, indent=1) + "\n")
     if "--video" in outputs:
         progress = lambda frames: options.progress(frames, unit="frame", desc="video")  # noqa: E731
         viz.render_preview_video(data, key, outputs["--video"], progress=progress)

@@ -24,6 +24,7 @@ import numpy as np
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_npz_document, require_regular_file
 from fignetctl.core.pinhole import Camera
+from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.cameras"
@@ -126,8 +127,9 @@ def _real_array(value, field: str, where: str) -> np.ndarray:
     return value.astype(np.float64)
 
 
-def write_cameras(path, cameras: Cameras) -> None:
-    """Validate, then write `cameras.npz` atomically."""
+def write_cameras(path, cameras: Cameras, provenance: dict | None = None) -> None:
+    """Validate, then write `cameras.npz` atomically, stamped with `provenance` (provenance.stamp;
+    default: the version alone)."""
     cameras = validate(cameras, str(path))
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez(
@@ -141,6 +143,7 @@ def write_cameras(path, cameras: Cameras) -> None:
             height=np.array(cameras.height),
             points=cameras.points,
             point_colors=cameras.point_colors,
+            **as_strings(provenance or stamp()),
         )
 
 

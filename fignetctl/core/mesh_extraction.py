@@ -73,7 +73,7 @@ class ExtractionSettings:
 # -- from masks to a box -------------------------------------------------------------------------
 
 
-def unproject(depth, mask, K, c2w):
+def masked_points(depth, mask, K, c2w):
     """World points (P, 3) float64 of the masked pixels of a z-depth image (H, W) (pinhole.unproject;
     pixels with no finite positive depth are skipped)."""
     depth = np.asarray(depth, np.float64)
@@ -444,7 +444,7 @@ def object_box_from_views(views, settings: ExtractionSettings):
         mask = view.mask if view.opacity is None else view.mask & (view.opacity >= 0.5)
         if not mask.any():
             raise FignetError(f"the mask of {view.name} is empty (or covers only empty space)")
-        points.append(unproject(view.depth, mask, view.K, view.c2w))
+        points.append(masked_points(view.depth, mask, view.K, view.c2w))
         names.append(view.name)
     return object_box_from_points(points, names, settings)
 
@@ -585,8 +585,11 @@ def _pixels(points, view, shape):
     return u, v, (depth > 1e-9) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
 
 
-def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None):
-    """object.obj (vertices relative to the origin), environment.obj (world), volume.npz."""
+def write_extraction(
+    out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None, provenance=None
+):
+    """object.obj (vertices relative to the origin), environment.obj (world), volume.npz (stamped
+    with `provenance`)."""
     from pathlib import Path
 
     from fignetctl.core.atomic import atomic_path
@@ -607,7 +610,7 @@ def write_extraction(out_dir, extraction: Extraction, settings: ExtractionSettin
         passive_upper=extraction.passive_upper,
         settings={**settings.to_dict(), **(extra_settings or {}), "support_z": extraction.support_z},
     )
-    write_volume(out_dir / "volume.npz", volume)
+    write_volume(out_dir / "volume.npz", volume, provenance)
     return volume
 
 

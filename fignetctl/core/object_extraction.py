@@ -47,6 +47,7 @@ def run_extraction(
     """Extract and write; returns a summary (faces, sizes, seconds, per-view mask pixels)."""
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.nerf.io import load_nerf
+    from fignetctl.core.provenance import stamp
 
     started = time.perf_counter()
     cameras = read_cameras(inputs.cameras)
@@ -61,7 +62,15 @@ def run_extraction(
         box = consistent_box(model.density, views, settings)
     extraction = extract_object(model.density, box, settings)
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}}
-    write_extraction(out_dir, extraction, settings, extra)
+    provenance = stamp(
+        nerf=inputs.nerf,
+        cameras=inputs.cameras,
+        prompts=inputs.prompts_json,
+        masks=inputs.masks_dir,
+        depth=inputs.depth,
+        images=inputs.images if views else None,
+    )
+    write_extraction(out_dir, extraction, settings, extra, provenance)
     _write_masks(Path(out_dir) / "masks", views)
     return {
         "object_faces": len(extraction.object_mesh.faces),

@@ -527,7 +527,7 @@ def _draw_random_mark(image, rng, scale):
 # Cameras ----------------------------------------------------------------------------------
 
 
-def look_at_point() -> np.ndarray:
+def ring_target() -> np.ndarray:
     """The point every camera looks at: the tray's centre, a little above its floor."""
     return np.array([0.0, 0.0, 0.04])
 
@@ -540,7 +540,7 @@ def ring_cameras(config: CaptureSettings, steps: np.ndarray):
     azimuth = 2 * math.pi * steps / config.views + 0.3
     low, high = np.radians(config.elevation_deg)
     elevation = 0.5 * (low + high) + 0.5 * (high - low) * np.sin(2 * azimuth)
-    target = look_at_point()
+    target = ring_target()
     eyes = target + config.radius * np.stack(
         [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], axis=1
     )
@@ -747,6 +747,7 @@ def scene_document(objects, config, cameras, names) -> dict:
         "format_version": FORMAT_VERSION,
         "source": "fignetctl render-views",
         "fignetctl_version": __version__,
+        "inputs_sha256": {},  # made from settings alone (provenance.py)
         "units": "metres",
         "up": "+z",
         "world_vertex": "R(quaternion_wxyz) . (scale . mesh_file_vertex) + position; objects/<name>.obj is already in world",
@@ -767,7 +768,7 @@ def scene_document(objects, config, cameras, names) -> dict:
             for o in objects
         ],
         "bounds": [lows.round(5).tolist(), highs.round(5).tolist()],
-        "look_at": look_at_point().tolist(),
+        "look_at": ring_target().tolist(),
         "image_names": names,
         "settings": dataclasses.asdict(config),
         "light": LIGHT,

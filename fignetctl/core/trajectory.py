@@ -25,6 +25,7 @@ import numpy as np
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import require_regular_file
 from fignetctl.core.hdf5_guard import read_guarded
+from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.trajectories"
@@ -166,7 +167,7 @@ def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gz
             f.attrs["format_version"] = FORMAT_VERSION
             f.attrs["dt"] = float(data.dt)
             f.attrs["gravity"] = np.asarray(data.gravity, np.float64)
-            for key, value in data.attrs.items():
+            for key, value in {**as_strings(stamp()), **data.attrs}.items():
                 f.attrs[key] = value
             meshes = f.create_group("meshes")
             for name, mesh in data.meshes.items():

@@ -26,6 +26,7 @@ import numpy as np
 
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_npz_document
+from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.volume"
@@ -84,8 +85,9 @@ def validate_volume(volume: Volume, where: str = "volume") -> Volume:
     )
 
 
-def write_volume(path, volume: Volume) -> Path:
-    """Validate, then write volume.npz atomically."""
+def write_volume(path, volume: Volume, provenance: dict | None = None) -> Path:
+    """Validate, then write volume.npz atomically, stamped with `provenance` (provenance.stamp;
+    default: the version alone)."""
     volume = validate_volume(volume, str(path))
     with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.savez(
@@ -96,6 +98,7 @@ def write_volume(path, volume: Volume) -> Path:
             object_mesh=np.array(volume.object_mesh),
             environment_mesh=np.array(volume.environment_mesh),
             settings=np.array(json.dumps(volume.settings, sort_keys=True)),
+            **as_strings(provenance or stamp()),
         )
     return Path(path)
 

@@ -5,7 +5,7 @@ import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import cli
-from fignetctl.core.provenance import file_sha256
+from fignetctl.core.provenance import file_sha256, read_provenance
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from tests.conftest import box_drop_file
 
@@ -110,11 +110,30 @@ def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
     rolled = read_trajectories(out).trajectories["00000"]
     truth = read_trajectories(data).trajectories["00000"]
     assert rolled.positions.shape == (7, 2, 3)
-    assert read_trajectories(out).attrs["model_sha256"] == file_sha256(model)  # which model made it
+    made_from = read_provenance(out)["inputs_sha256"]  # which model and scene made it
+    assert made_from == {"model": file_sha256(model), "scene": file_sha256(data)}
     np.testing.assert_array_equal(rolled.positions[:2], truth.positions[:2])
     np.testing.assert_array_equal(
         rolled.positions[:, 0], truth.positions[:7, 0]
     )  # the static floor follows its frames
+
+
+def test_model_file_dataset_and_report_say_what_made_them(trained, tmp_path):
+    from fignetctl import __version__
+
+    _, data, model = trained
+    assert read_provenance(model) == {
+        "fignetctl_version": __version__,
+        "inputs_sha256": {"training_data": file_sha256(data)},
+    }
+    assert read_provenance(data) == {"fignetctl_version": __version__, "inputs_sha256": {}}
+    out = tmp_path / "metrics.json"
+    args = ["evaluate", str(data), "--model", str(model), "--max-trajectories", "1", "-o", str(out)]
+    assert CliRunner().invoke(cli, args).exit_code == 0
+    assert read_provenance(out) == {
+        "fignetctl_version": __version__,
+        "inputs_sha256": {"data": file_sha256(data), "model": file_sha256(model)},
+    }
 
 
 def test_evaluate_reports_model_and_baselines(trained, tmp_path):

@@ -7,6 +7,7 @@ from click.testing import CliRunner
 
 from fignetctl.cli import cli
 from fignetctl.core.media import read_video_info
+from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import write_trajectories
 from tests.conftest import INDEPENDENT_FIXTURE, box_drop_file
 
@@ -23,6 +24,7 @@ def test_summary_on_stdout_and_json(box_file, tmp_path):
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["trajectories"] == 1
     assert summary["per_trajectory"][0]["object_table"][1]["mesh"] == "box"
+    assert summary["inputs_sha256"] == {"trajectories": file_sha256(box_file)}
 
 
 def test_video_has_every_frame_and_shows_motion(box_file, tmp_path):

@@ -70,13 +70,13 @@ def test_empty_volume_and_bad_threshold_fail_clearly():
         mx.marching_cubes(np.ones((4, 4, 4)), [np.arange(4.0)] * 3, -1.0)
 
 
-def test_unproject_and_robust_box():
+def test_masked_points_and_robust_box():
     K = np.array([[100.0, 0, 50.5], [0, 100.0, 40.5], [0, 0, 1]])  # pixel (50, 40) on the optical axis
     c2w = np.eye(4)
     depth = np.full((80, 100), 2.0)
     mask = np.zeros((80, 100), bool)
     mask[40, 50] = mask[40, 60] = True
-    points = mx.unproject(depth, mask, K, c2w)
+    points = mx.masked_points(depth, mask, K, c2w)
     assert np.allclose(points, [[0, 0, 2], [0.2, 0, 2]])
     cloud = np.random.default_rng(0).normal(size=(1000, 3))
     cloud[:5] = 100.0  # outliers

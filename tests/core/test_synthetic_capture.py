@@ -100,7 +100,7 @@ def test_object_meshes_project_onto_their_masks(tiny_capture):
 
 def test_cameras_orbit_and_look_at_the_tray(tiny_capture):
     cameras = read_cameras(tiny_capture[0] / "ground_truth" / "cameras.npz")
-    target = capture.look_at_point()
+    target = capture.ring_target()
     offsets = target - cameras.centres
     np.testing.assert_allclose(np.linalg.norm(offsets, axis=1), capture.CaptureSettings().radius, rtol=1e-6)
     forward = cameras.c2w[:, :3, 2]  # OpenCV: z looks forward, y down

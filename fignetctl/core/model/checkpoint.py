@@ -20,11 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
 from fignetctl.core.model.trained_ranges import ranges_from_json
-from fignetctl.core.provenance import file_sha256
+from fignetctl.core.provenance import as_strings, file_sha256, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -41,12 +40,13 @@ def bundled_model_path(name=DEFAULT_BUNDLED) -> Path:
     return Path(str(resources.files("fignetctl") / "assets" / "models" / BUNDLED[name]))
 
 
-def save_checkpoint(path, simulator, training_state=None, extra=None) -> Path:
-    """Write a model file atomically; `training_state` makes it resumable."""
+def save_checkpoint(path, simulator, training_state=None, extra=None, provenance=None) -> Path:
+    """Write a model file atomically, stamped with `provenance` (provenance.stamp; default: the
+    version alone); `training_state` makes it resumable."""
     payload = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "fignetctl_version": __version__,
+        **as_strings(provenance or stamp()),
         "simulator_config": simulator.config.to_json(),
         "model": {k: v.detach().cpu() for k, v in simulator.state_dict().items()},
         **(extra or {}),

@@ -13,6 +13,7 @@ from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_mo
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.model.trained_ranges import outside_ranges
+from fignetctl.core.provenance import INPUTS_KEY, as_strings, file_sha256, stamp
 from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
 from fignetctl.errors import FignetError
 
@@ -98,7 +99,12 @@ def rollout_file(
     def result(frames):
         if scale != 1.0:
             frames = froude.unscaled_frames(frames, history, scale)
-        return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
+        rolled = rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
+        inputs = {"scene": file_sha256(scene_path)}
+        if getattr(simulator, "source_sha256", None):  # a simulator loaded from a model file
+            inputs["model"] = simulator.source_sha256
+        rolled.attrs.update(as_strings({**stamp(), INPUTS_KEY: inputs}))
+        return rolled
 
     try:
         frames = rollout(simulator, scene, num_steps, on_step, guards=guards, with_velocities=True)
@@ -141,8 +147,6 @@ def rollout_result(
         "model_config": simulator.config.to_json(),
         "sim_scale": float(sim_scale),
     }
-    if getattr(simulator, "source_sha256", None):  # a simulator loaded from a model file
-        attrs["model_sha256"] = simulator.source_sha256
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 

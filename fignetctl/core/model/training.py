@@ -33,7 +33,7 @@ from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_d
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
 from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
-from fignetctl.core.provenance import file_sha256
+from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.errors import FignetError
 
@@ -303,6 +303,10 @@ class Trainer:
                 self.simulator,
                 training_state=state,
                 extra={"trained_properties": ranges_to_json(self.simulator.trained_properties)},
+                provenance={
+                    **stamp(),
+                    INPUTS_KEY: {"training_data": self.data_hash} if self.data_hash else {},
+                },
             )
         distributed.barrier()
 

@@ -2,7 +2,7 @@
 
 A torch file loaded with `weights_only=True` (nothing is unpickled but tensors and plain values):
 
-    format, format_version, fignetctl_version, config (NerfConfig json), bounds (2x3 list),
+    format, format_version, fignetctl_version, inputs_sha256 (provenance.py), config (NerfConfig json), bounds (2x3 list),
     density_shape (X, Y, Z of the density grid), feature_shape (C, X, Y, Z of the colour grid), metrics (json), inputs (json: data hash,
     image size trained on), model (state_dict), training_state (optional: step, optimizer,
     generator state, history, seconds)
@@ -17,9 +17,9 @@ from pathlib import Path
 
 import torch
 
-from fignetctl import __version__
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
+from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.errors import FormatError
 
@@ -27,12 +27,13 @@ FORMAT = "fignetctl.nerf"
 FORMAT_VERSION = 1
 
 
-def save_nerf(path, model, metrics=None, inputs=None, training_state=None) -> Path:
-    """Write a nerf.pt atomically; `training_state` makes it resumable."""
+def save_nerf(path, model, metrics=None, inputs=None, training_state=None, provenance=None) -> Path:
+    """Write a nerf.pt atomically, stamped with `provenance` (provenance.stamp; default: the
+    version alone); `training_state` makes it resumable."""
     payload = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
-        "fignetctl_version": __version__,
+        **as_strings(provenance or stamp()),
         "config": model.config.to_json(),
         "bounds": model.bounds.tolist(),
         "density_shape": list(model.field.density_grid.shape[2:]),

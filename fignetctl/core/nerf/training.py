@@ -62,6 +62,7 @@ class NerfTrainer:
         self.optimizer = make_optimizer(model, config)
         self.generator = torch.Generator().manual_seed(config.seed)
         self.step, self.seconds, self.history, self.data_hash = 0, 0.0, [], data_hash
+        self.provenance = None  # the stamp saved files carry (provenance.stamp); None: the version alone
 
     def learning_rate_factor(self) -> float:
         return self.config.learning_rate_decay ** (
@@ -163,7 +164,7 @@ class NerfTrainer:
         }
 
     def save(self, path, metrics=None) -> None:
-        save_nerf(path, self.model, metrics, self.inputs(), self.state())
+        save_nerf(path, self.model, metrics, self.inputs(), self.state(), self.provenance)
 
 
 def make_trainer(

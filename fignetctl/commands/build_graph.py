@@ -118,7 +118,7 @@ def build_graph(
       fignetctl build-graph ball/volume.npz --drop-height 0.1 -o scene.h5
       fignetctl rollout scene.h5 --steps 60 -o rollout.h5
     """
-    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.obj import load_obj
     from fignetctl.core.provenance import as_strings, stamp
     from fignetctl.core.scene_building import Properties, build_scene, drop_history
     from fignetctl.core.trajectory import write_trajectories

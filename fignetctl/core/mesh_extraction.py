@@ -592,7 +592,7 @@ def write_extraction(
     with `provenance`)."""
     from pathlib import Path
 
-    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.obj import write_obj
     from fignetctl.core.volume import Volume, write_volume
 
     out_dir = Path(out_dir)
@@ -600,8 +600,7 @@ def write_extraction(
     object_mesh = extraction.object_mesh.copy()
     object_mesh.apply_translation(-extraction.origin)
     for name, mesh in (("object.obj", object_mesh), ("environment.obj", extraction.environment_mesh)):
-        with atomic_path(out_dir / name) as tmp:
-            mesh.export(tmp, file_type="obj", include_normals=False, include_texture=False)
+        write_obj(out_dir / name, mesh.vertices, mesh.faces)
     volume = Volume(
         lower=extraction.lower,
         upper=extraction.upper,
@@ -612,34 +611,3 @@ def write_extraction(
     )
     write_volume(out_dir / "volume.npz", volume, provenance)
     return volume
-
-
-def load_obj(path):
-    """An .obj file -> trimesh.Trimesh (vertices and faces only, as written); FignetError if unusable."""
-    import trimesh
-
-    try:
-        mesh = trimesh.load(path, file_type="obj", force="mesh", process=False)
-    except Exception as error:  # trimesh raises many types for damaged files
-        raise FignetError(f"{path}: not a readable .obj mesh ({type(error).__name__})") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise FignetError(f"{path}: holds no triangles")
-    _check_obj_geometry(mesh, path)
-    return mesh
-
-
-def _check_obj_geometry(mesh, path) -> None:
-    """Finite float32 vertices, faces that index them, and at least one face with an area."""
-    vertices, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
-        raise FignetError(f"{path}: vertices must have 3 coordinates and faces 3 corners")
-    if not np.all(np.isfinite(vertices)) or np.abs(vertices).max() > np.finfo(np.float32).max:
-        raise FignetError(f"{path}: holds vertices that are NaN, infinite or beyond float32")
-    if faces.min() < 0 or faces.max() >= len(vertices):
-        raise FignetError(f"{path}: a face refers to a vertex that does not exist")
-    corners = vertices[faces]
-    areas = 0.5 * np.linalg.norm(
-        np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
-    )
-    if not np.any(areas > 0):
-        raise FignetError(f"{path}: every triangle has zero area")

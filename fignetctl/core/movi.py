@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.obj import write_convex_parts_obj
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
 from fignetctl.core.transforms import (
     lowest_vertex_heights,
@@ -331,26 +331,6 @@ def principal_frame(inertia) -> tuple:
     if np.linalg.det(axes) < 0:
         axes[:, 2] *= -1.0
     return np.maximum(moments, 0.0), matrix_to_quat(axes)
-
-
-def write_convex_parts_obj(parts, path) -> None:
-    """An OBJ with one `o` group (the convex hull's triangles) per part, written atomically
-    (worker processes may write the same file at once).
-
-    PyBullet loads such a file as a compound of convex hulls, one per group.
-    parts : list of (V_i, 3) float
-    """
-    from scipy.spatial import ConvexHull
-
-    lines, offset = [], 1
-    for number, part in enumerate(parts):
-        faces = ConvexHull(part, qhull_options="QJ").simplices
-        lines.append(f"o part{number}")
-        lines += ["v %.9g %.9g %.9g" % tuple(vertex) for vertex in part]
-        lines += ["f %d %d %d" % tuple(face + offset) for face in faces]
-        offset += len(part)
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text("\n".join(lines) + "\n")
 
 
 # ----------------------------------------------------------------------------- seeds, shards

@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.obj import read_obj_groups, read_obj_vertices, write_convex_parts_obj
 from fignetctl.errors import FignetError
 
 logger = logging.getLogger(__name__)
@@ -457,29 +458,8 @@ def convex_parts_obj_path(asset: ShapeAsset, cache: Path) -> Path:
         digest.update(np.ascontiguousarray(part, dtype=np.float32).tobytes())
     path = cache / "collision" / f"{safe_file_stem(asset.name)}-{digest.hexdigest()[:20]}.obj"
     if not path.exists():
-        with atomic_path(path) as temporary:
-            temporary.write_text(convex_parts_obj_text(asset.convex_parts))
+        write_convex_parts_obj(asset.convex_parts, path)
     return path
-
-
-def convex_parts_obj_text(convex_parts) -> str:
-    """OBJ text: per part an `o part_i` line, its hull vertices and hull triangles."""
-    from scipy.spatial import ConvexHull
-
-    lines, offset = [], 1
-    for index, part in enumerate(convex_parts):
-        hull = ConvexHull(np.asarray(part, dtype=np.float64))
-        points = hull.points[hull.vertices]
-        remap = np.zeros(len(hull.points), dtype=np.int64)
-        remap[hull.vertices] = np.arange(len(hull.vertices)) + offset
-        lines.append(f"o part_{index}")
-        lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in points]
-        lines += [f"f {a} {b} {c}" for a, b, c in remap[hull.simplices]]
-        offset += len(points)
-    return "\n".join(lines) + "\n"
-
-
-# ----------------------------------------------------------------------------- building
 
 
 def build_asset(recipe: ShapeRecipe) -> ShapeAsset:
@@ -683,36 +663,6 @@ def describe_source(source: str, parts: list) -> str:
 
 
 # ----------------------------------------------------------------------------- OBJ input
-
-
-def read_obj_groups(path) -> list[np.ndarray]:
-    """The vertices used by the faces of each `o`/`g` group of an OBJ file, one array per group.
-
-    returns : list of (n_i, 3) float; PyBullet makes one convex hull of each such group.
-    """
-    vertices, groups, current = [], [], None
-    for line in Path(path).read_text(errors="replace").splitlines():
-        if line.startswith("v "):
-            vertices.append([float(value) for value in line.split()[1:4]])
-        elif line.startswith(("o ", "g ")):
-            current = []
-            groups.append(current)
-        elif line.startswith("f "):
-            if current is None:
-                current = []
-                groups.append(current)
-            for token in line.split()[1:]:
-                index = int(token.split("/")[0])
-                current.append(index - 1 if index > 0 else len(vertices) + index)
-    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    return [vertices[np.unique(group)] for group in groups if group]
-
-
-def read_obj_vertices(path) -> np.ndarray:
-    """(n, 3) float: every `v` line of an OBJ file."""
-    lines = Path(path).read_text(errors="replace").splitlines()
-    rows = [line.split()[1:4] for line in lines if line.startswith("v ")]
-    return np.asarray(rows, dtype=np.float64).reshape(-1, 3)
 
 
 def read_obj_groups_after_vhacd(path) -> list[np.ndarray]:

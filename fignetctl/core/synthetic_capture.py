@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core import pinhole
+from fignetctl.core.obj import read_obj, write_obj
 from fignetctl.errors import FignetError
 
 log = logging.getLogger(__name__)
@@ -373,22 +374,6 @@ def _load_mesh(relative: str):
 
         _MESH_CACHE[relative] = read_obj(os.path.join(pybullet_data.getDataPath(), relative))
     return _MESH_CACHE[relative]
-
-
-def read_obj(path):
-    """Vertices (V,3) float and triangles (F,3) int of a Wavefront OBJ (positions only)."""
-    vertices, faces = [], []
-    with open(path, errors="replace") as file:
-        for line in file:
-            if line.startswith("v "):
-                vertices.append([float(x) for x in line.split()[1:4]])
-            elif line.startswith("f "):
-                corners = [int(token.split("/")[0]) for token in line.split()[1:]]
-                corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
-                faces += [[corners[0], corners[i], corners[i + 1]] for i in range(1, len(corners) - 1)]
-    if not vertices or not faces:
-        raise FignetError(f"{path}: no triangles in this OBJ file")
-    return np.array(vertices, float), np.array(faces, np.int64)
 
 
 def _file_body(client, index, asset: ObjectAsset, role, position, quaternion_wxyz) -> SceneObject:
@@ -773,13 +758,6 @@ def scene_document(objects, config, cameras, names) -> dict:
         "settings": dataclasses.asdict(config),
         "light": LIGHT,
     }
-
-
-def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """A plain Wavefront OBJ (vertices and 1-based triangles)."""
-    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices]
-    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    path.write_text("\n".join(lines) + "\n")
 
 
 def _write_json(path: Path, document: dict) -> None:

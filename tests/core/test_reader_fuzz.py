@@ -163,7 +163,7 @@ def _obj_file(path):
 
 def _readers():
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.obj import load_obj
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.volume import read_volume
 
@@ -314,7 +314,7 @@ _TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
     ],
 )
 def test_obj_that_is_no_usable_mesh(tmp_path, text):
-    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.obj import load_obj
 
     path = tmp_path / "bad.obj"
     path.write_bytes(text.encode("latin-1"))
@@ -325,7 +325,7 @@ def test_obj_with_holes_and_some_zero_area_faces_is_read(tmp_path):
     """An open box (a hole) with one extra zero-area face is a usable mesh: it is read as is."""
     import trimesh
 
-    from fignetctl.core.mesh_extraction import load_obj
+    from fignetctl.core.obj import load_obj
 
     box = trimesh.creation.box()
     faces = np.vstack([box.faces[2:], [[0, 0, 1]]])

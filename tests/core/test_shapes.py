@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from fignetctl.core import shapes
+from fignetctl.core.obj import read_obj_groups
 from fignetctl.errors import FignetError
 
 MILLIMETRE = 1e-3
@@ -244,7 +245,7 @@ def test_read_obj_groups_one_array_per_group(tmp_path):
         "o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
         "o b\nv 5 0 0\nv 6 0 0\nv 5 1 0\nv 5 0 1\nf -4 -3 -2\nf -4 -3 -1\nf -4 -2 -1\nf -3 -2 -1\n"
     )
-    groups = shapes.read_obj_groups(path)
+    groups = read_obj_groups(path)
     assert len(groups) == 2
     np.testing.assert_array_equal(groups[1].min(axis=0), [5, 0, 0])
 

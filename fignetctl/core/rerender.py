@@ -381,12 +381,8 @@ def to_uint8(rgb) -> np.ndarray:
 class _RerunLog:
     """Frames, camera and the object's path in a rerun recording (timeline "frame")."""
 
-    def __init__(self, path, motion: ObjectMotion, steps):
-        from fignetctl.core.viz import import_rerun, recording_stream
-
-        self.rr = rr = import_rerun()
-        self.rec = recording_stream(path)
-        self.rec.save(path)
+    def __init__(self, rr, rec, motion: ObjectMotion, steps):
+        self.rr, self.rec = rr, rec
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         path_points = np.asarray(motion.positions[list(steps)], np.float32)
         self.rec.log(
@@ -404,10 +400,6 @@ class _RerunLog:
             "world/camera", rr.Pinhole(image_from_camera=np.asarray(K), width=int(width), height=int(height))
         )
         rec.log("world/camera/image", rr.Image(image))
-
-    def close(self) -> None:
-        self.rec.flush()
-        self.rec.disconnect()
 
 
 def write_rerender(
@@ -429,6 +421,7 @@ def write_rerender(
 
     from fignetctl.core.atomic import atomic_path
     from fignetctl.core.media import Mp4Writer
+    from fignetctl.core.rerun_log import recording
 
     steps, cameras = list(steps), list(cameras)
     width, height = int(cameras[0][2]), int(cameras[0][3])
@@ -436,9 +429,12 @@ def write_rerender(
     with contextlib.ExitStack() as stack:
         tmp_dir = stack.enter_context(atomic_directory(frames_dir))
         tmp_video = stack.enter_context(atomic_path(video_path, suffix=".mp4"))
-        tmp_rrd = stack.enter_context(atomic_path(rerun_path, suffix=".rrd")) if rerun_path else None
         writer = stack.enter_context(Mp4Writer(tmp_video, float(fps), width, height))
-        log = _RerunLog(tmp_rrd, renderer.motion, steps) if tmp_rrd else None
+        log = (
+            _RerunLog(*stack.enter_context(recording(rerun_path)), renderer.motion, steps)
+            if rerun_path
+            else None
+        )
         for index, (step, camera) in enumerate(
             progress(list(zip(steps, cameras))) if progress else zip(steps, cameras)
         ):
@@ -456,8 +452,6 @@ def write_rerender(
             if log:
                 log.log(index, step, camera, image)
         writer.close()
-        if log:
-            log.close()
     return {
         "frames": len(steps),
         "width": width,

@@ -313,37 +313,27 @@ def import_colmap(model_dir) -> Cameras:
 def log_cameras_to_rerun(path_rrd, cameras: Cameras, image_dir=None, entity_root: str = "world") -> Path:
     """Write the cameras (frusta, with their images when `image_dir` is given) and the sparse
     points to a rerun recording (.rrd), atomically. World: z up."""
-    from fignetctl.core.atomic import atomic_path
-    from fignetctl.core.viz import import_rerun, recording_stream
+    from fignetctl.core.rerun_log import recording
 
-    rr = import_rerun()
     path_rrd = Path(path_rrd)
-    with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = recording_stream(tmp)
-        rec.save(tmp)
-        try:
-            rec.log(entity_root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-            if len(cameras.points):
-                rec.log(
-                    f"{entity_root}/points",
-                    rr.Points3D(cameras.points, colors=cameras.point_colors, radii=-2.0),
-                    static=True,
-                )
-            for index, name in enumerate(cameras.image_names):
-                entity = f"{entity_root}/cameras/{index:04d}"
-                c2w = cameras.c2w[index]
-                rec.log(entity, rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]), static=True)
-                rec.log(
-                    entity,
-                    rr.Pinhole(
-                        image_from_camera=cameras.K[index], resolution=[cameras.width, cameras.height]
-                    ),
-                    static=True,
-                )
-                file = Path(image_dir) / str(name) if image_dir is not None else None
-                if file is not None and file.is_file():
-                    rec.log(f"{entity}/image", rr.EncodedImage(path=file), static=True)
-            rec.flush()
-        finally:
-            rec.disconnect()
+    with recording(path_rrd) as (rr, rec):
+        rec.log(entity_root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        if len(cameras.points):
+            rec.log(
+                f"{entity_root}/points",
+                rr.Points3D(cameras.points, colors=cameras.point_colors, radii=-2.0),
+                static=True,
+            )
+        for index, name in enumerate(cameras.image_names):
+            entity = f"{entity_root}/cameras/{index:04d}"
+            c2w = cameras.c2w[index]
+            rec.log(entity, rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]), static=True)
+            rec.log(
+                entity,
+                rr.Pinhole(image_from_camera=cameras.K[index], resolution=[cameras.width, cameras.height]),
+                static=True,
+            )
+            file = Path(image_dir) / str(name) if image_dir is not None else None
+            if file is not None and file.is_file():
+                rec.log(f"{entity}/image", rr.EncodedImage(path=file), static=True)
     return path_rrd

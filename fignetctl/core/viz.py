@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ import numpy as np
 from fignetctl.core import pinhole
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.pinhole import Camera
+from fignetctl.core.rerun_log import import_rerun, recording
 from fignetctl.core.trajectory import Trajectory, TrajectoryFile
 from fignetctl.core.trajectory_summary import energies, lowest_vertex_heights
 from fignetctl.core.transforms import quat_to_matrix
@@ -376,28 +376,6 @@ def render_preview_video(
 # ----------------------------------------------------------------------------- rerun
 
 
-def import_rerun():
-    """The rerun module, or a FignetError that says how to install it (the one import of rerun)."""
-    try:
-        import rerun
-    except ImportError:
-        raise FignetError("logging to rerun needs rerun-sdk: pip install rerun-sdk") from None
-    return rerun
-
-
-RECORDING_ID_ENV = "FIGNETCTL_RECORDING_ID"
-
-
-def recording_stream(path_rrd):
-    """A rerun RecordingStream for a recording written to `path_rrd` (or a temporary file
-    beside it). Application "fignetctl"; recording id $FIGNETCTL_RECORDING_ID, else the
-    absolute path of the file's folder, so the recordings a scene's stages write into one
-    folder open in the viewer as one recording."""
-    rr = import_rerun()
-    recording_id = os.environ.get(RECORDING_ID_ENV) or str(Path(path_rrd).resolve().parent)
-    return rr.RecordingStream("fignetctl", recording_id=recording_id)
-
-
 def _object_entity(root: str, index: int, name: str) -> str:
     return f"{root}/objects/{index:02d}_{name}"
 
@@ -476,7 +454,7 @@ def log_trajectory(rec, data: TrajectoryFile, trajectory_id, entity_root: str = 
 
 
 def _blueprint(entity_root: str):
-    import rerun.blueprint as rrb
+    rrb = import_rerun().blueprint
 
     return rrb.Blueprint(
         rrb.Horizontal(
@@ -498,16 +476,9 @@ def log_trajectory_to_rerun(
     with energy plots beside them.
     """
     _get_trajectory(data, trajectory_id)
-    path_rrd = Path(path_rrd)
-    with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = recording_stream(tmp)
-        rec.save(tmp, default_blueprint=_blueprint(entity_root))
-        try:
-            log_trajectory(rec, data, trajectory_id, entity_root)
-            rec.flush()
-        finally:
-            rec.disconnect()
-    return path_rrd
+    with recording(path_rrd, _blueprint(entity_root)) as (_, rec):
+        log_trajectory(rec, data, trajectory_id, entity_root)
+    return Path(path_rrd)
 
 
 def log_scalars_to_rerun(path_rrd, entity_root: str, series: dict) -> Path:
@@ -515,15 +486,9 @@ def log_scalars_to_rerun(path_rrd, entity_root: str, series: dict) -> Path:
 
     series : name -> list of (step, value); logged as <root>/<name> on the "step" timeline
     """
-    rr = import_rerun()
-    path_rrd = Path(path_rrd)
-    with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = recording_stream(tmp)
-        rec.save(tmp)
+    with recording(path_rrd) as (rr, rec):
         for name, points in series.items():
             for step, value in points:
                 rec.set_time("step", sequence=int(step))
                 rec.log(f"{entity_root}/{name}", rr.Scalars(float(value)))
-        rec.flush()
-        rec.disconnect()
-    return path_rrd
+    return Path(path_rrd)

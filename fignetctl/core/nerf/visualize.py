@@ -56,13 +56,10 @@ def render_views_to_folder(model, cameras, indices, folder, scale=None) -> list:
 
 def log_fit_to_rerun(path_rrd, trainer, renderings) -> Path:
     """Loss and PSNR per step, and each held-out view rendered beside its image."""
-    from fignetctl.core.viz import import_rerun, recording_stream
+    from fignetctl.core.rerun_log import recording
 
-    rr = import_rerun()
     path_rrd = Path(path_rrd)
-    with atomic_path(path_rrd, suffix=".rrd") as tmp:
-        rec = recording_stream(tmp)
-        rec.save(tmp)
+    with recording(path_rrd) as (rr, rec):
         for record in trainer.history:
             rec.set_time("step", sequence=int(record["step"]))
             rec.log("fit-nerf/loss", rr.Scalars(float(record["loss"])))
@@ -73,6 +70,4 @@ def log_fit_to_rerun(path_rrd, trainer, renderings) -> Path:
             rec.log(f"{name}/rendered", rr.Image((np.clip(rendering.rgb, 0, 1) * 255).astype(np.uint8)))
             rec.log(f"{name}/image", rr.Image((trainer.views.images[index] * 255).astype(np.uint8)))
             rec.log(f"{name}/depth", rr.DepthImage(rendering.depth))
-        rec.flush()
-        rec.disconnect()
     return path_rrd

@@ -211,8 +211,15 @@ def extract_mesh(
     summary = run_extraction(
         inputs, out, settings, SegmentationSettings(max_size=max_size), options.resolve_device(device)
     )
+    agreement = summary["mask_iou"]
+    outline = (
+        f"; outline vs masks IoU {min(agreement.values()):.2f}-{max(agreement.values()):.2f}"
+        if agreement
+        else ""
+    )
     click.echo(
-        f"object: {summary['object_faces']} faces, {summary['object_size']} world units; environment: "
+        f"object: {summary['object_faces']} faces, {summary['object_size']} world units"
+        f"{'' if summary['watertight'] else ' (not watertight)'}{outline}; environment: "
         f"{summary['environment_faces']} faces; {summary['seconds']:.1f} s",
         err=True,
     )

@@ -65,6 +65,11 @@ class ExtractionSettings:
     V_o's height above the support: there the hull also holds the support's own density beside
     the object (seen in one view, hidden behind the object in the others), which would pull a
     piece of the floor into that view's mask. GrabCut fills the object's base in from colour."""
+    min_mask_iou: float = 0.5
+    """The mesh is refused when its outline and the mask overlap less than this (IoU) in the
+    median prompted view (`mask_agreement`): a mesh that does not look like what was prompted."""
+    warn_mask_iou: float = 0.8
+    """... and a warning names each view where they overlap less than this."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -583,6 +588,64 @@ def _pixels(points, view, shape):
     image, depth = pinhole.project(view.K, view.c2w, points)
     u, v = pinhole.pixel_of(image).T
     return u, v, (depth > 1e-9) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+
+
+def silhouette(vertices, faces, view, shape) -> np.ndarray:
+    """(H, W) bool: the pixels whose centre a mesh (world vertices (V, 3), triangles (F, 3))
+    covers in the view; triangles with a corner behind the camera are left out."""
+    image, depth = pinhole.project(view.K, view.c2w, vertices)
+    faces = np.asarray(faces)
+    covered = np.zeros(shape, bool)
+    for triangle in image[faces[(depth[faces] > 1e-9).all(axis=1)]]:
+        low = np.maximum(np.floor(triangle.min(0) - pinhole.PIXEL_CENTRE), 0).astype(int)
+        high = np.minimum(
+            np.ceil(triangle.max(0) - pinhole.PIXEL_CENTRE), [shape[1] - 1, shape[0] - 1]
+        ).astype(int)
+        if np.any(high < low):
+            continue
+        v, u = np.mgrid[low[1] : high[1] + 1, low[0] : high[0] + 1] + pinhole.PIXEL_CENTRE
+        sides = [
+            (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])
+            for a, b in ((triangle[0], triangle[1]), (triangle[1], triangle[2]), (triangle[2], triangle[0]))
+        ]
+        inside = ((sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)) | (
+            (sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0)
+        )
+        covered[low[1] : high[1] + 1, low[0] : high[0] + 1] |= inside
+    return covered
+
+
+def mask_agreement(mesh, views) -> dict:
+    """{view name: IoU of the mesh's outline (world mesh) and the view's mask}."""
+    from fignetctl.core.segmentation import iou
+
+    return {
+        view.name: iou(silhouette(mesh.vertices, mesh.faces, view, view.mask.shape), view.mask)
+        for view in views
+    }
+
+
+def check_mask_agreement(agreement: dict, settings: ExtractionSettings) -> None:
+    """FignetError when the median view's IoU is below min_mask_iou; a warning naming each view
+    below warn_mask_iou."""
+    if not agreement:
+        return
+    median = float(np.median(list(agreement.values())))
+    worst = min(agreement, key=agreement.get)
+    if median < settings.min_mask_iou:
+        raise FignetError(
+            f"the mesh does not match the masks (outline IoU {median:.2f} in the median view, "
+            f"{agreement[worst]:.2f} in {worst}; at least {settings.min_mask_iou} needed): the density threshold "
+            f"({settings.threshold:g}) may cut the object apart or merge it with its surroundings, or the "
+            "prompts may sit on different objects; look at the masks and change one or the other"
+        )
+    for name, value in agreement.items():
+        if value < settings.warn_mask_iou:
+            log.warning(
+                "%s: the mesh's outline and the mask overlap little (IoU %.2f); check the mesh there",
+                name,
+                value,
+            )
 
 
 def write_extraction(

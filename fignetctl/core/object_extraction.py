@@ -16,8 +16,10 @@ from fignetctl.core.documents import require_regular_file
 from fignetctl.core.mesh_extraction import (
     ExtractionSettings,
     View,
+    check_mask_agreement,
     consistent_box,
     extract_object,
+    mask_agreement,
     view_masks,
     write_extraction,
 )
@@ -61,7 +63,15 @@ def run_extraction(
         views = _masked_views(inputs, cameras, model, segmentation)
         box = consistent_box(model.density, views, settings)
     extraction = extract_object(model.density, box, settings)
-    extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}}
+    agreement = {
+        name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
+    }
+    check_mask_agreement(agreement, settings)
+    extra = {
+        "inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v},
+        "mask_iou": agreement,
+        "watertight": bool(extraction.object_mesh.is_watertight),
+    }
     provenance = stamp(
         nerf=inputs.nerf,
         cameras=inputs.cameras,
@@ -81,6 +91,8 @@ def run_extraction(
         "origin": extraction.origin.tolist(),
         "support_z": extraction.support_z,
         "masks": {view.name: int(view.mask.sum()) for view in views},
+        "mask_iou": agreement,
+        "watertight": bool(extraction.object_mesh.is_watertight),
         "seconds": time.perf_counter() - started,
     }
 

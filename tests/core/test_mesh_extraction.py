@@ -302,3 +302,52 @@ def test_a_faint_support_becomes_a_plane_in_the_environment(floor_density, plane
     # either way, something is under the cube's middle at the support's height
     hits, _, _ = environment.ray.intersects_location([[0.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])
     assert np.min(np.abs(hits[:, 2] - extraction.support_z)) < 0.01
+
+
+def _box_view(eye, size=(80, 60)):
+    from fignetctl.core import pinhole
+
+    K = pinhole.intrinsics_from_fov(*size, 50.0)
+    return mx.View(f"view at {eye}", K, pinhole.look_at(eye, [0, 0, 0]), np.ones(size[::-1]))
+
+
+def test_a_meshs_silhouette_is_the_pixels_whose_rays_hit_it():
+    """The rasterised outline of a box against ray casting through every pixel centre (slabs)."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+
+    box = trimesh.creation.box([0.3, 0.2, 0.1])
+    for eye in ([0.8, -0.5, 0.6], [0.0, -0.9, 0.2], [0.3, 0.4, -0.7]):
+        view = _box_view(eye)
+        origins, directions = pinhole.pixel_rays(view.K, view.c2w, 80, 60)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_low = (-box.extents / 2 - origins) / directions
+            t_high = (box.extents / 2 - origins) / directions
+        near = np.minimum(t_low, t_high).max(-1)
+        far = np.maximum(t_low, t_high).min(-1)
+        hit = (near <= far) & (far > 0)
+        drawn = mx.silhouette(box.vertices, box.faces, view, hit.shape)
+        assert hit.sum() > 200
+        assert (drawn != hit).sum() <= 2  # pixel centres on an edge may go either way
+
+
+def test_a_mesh_that_misses_its_masks_is_refused_and_a_poor_one_warned(caplog):
+    import trimesh
+
+    settings = mx.ExtractionSettings()
+    box = trimesh.creation.box([0.3, 0.2, 0.1])
+    views = [_box_view(eye) for eye in ([0.8, -0.5, 0.6], [0.0, -0.9, 0.2], [-0.6, 0.5, 0.5])]
+    for view in views:
+        view.mask = mx.silhouette(box.vertices, box.faces, view, view.depth.shape)
+    assert all(value == 1.0 for value in mx.mask_agreement(box, views).values())
+    mx.check_mask_agreement(mx.mask_agreement(box, views), settings)
+    larger = box.copy()
+    larger.apply_scale(1.25)  # a bloated mesh: IoU about 1 / 1.25² in every view
+    with caplog.at_level("WARNING"):
+        mx.check_mask_agreement(mx.mask_agreement(larger, views), settings)
+    assert caplog.text.count("overlap little") == 3
+    moved = box.copy()
+    moved.apply_translation([0.25, 0, 0])  # beside what was prompted
+    with pytest.raises(FignetError, match="does not match the masks"):
+        mx.check_mask_agreement(mx.mask_agreement(moved, views), settings)

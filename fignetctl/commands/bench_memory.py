@@ -22,33 +22,33 @@ from fignetctl.commands import options
 )
 @click.option(
     "--max-faces",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=10**6),
     default=None,
     help="Decimate each mesh to at most this many faces; 0 keeps the meshes whole.  [default: 256]",
 )
 @click.option(
     "--collision-radius",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Face-face edge radius in metres.  [default: 0.2]",
 )
 @click.option(
     "--samples",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**5),
     default=10,
     show_default=True,
     help="(trajectory, frame) pairs per data file.",
 )
 @click.option(
     "--repeats",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=1000),
     default=5,
     show_default=True,
     help="Timed runs per pair, model and phase, after one warm-up run.",
 )
 @click.option(
     "--threads",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=1024),
     default=1,
     show_default=True,
     help="Torch CPU threads while measuring; 0 keeps torch's default (all cores).",

@@ -5,7 +5,6 @@ from pathlib import Path
 import click
 
 from fignetctl.commands import options
-from fignetctl.commands.extract_mesh import _floats
 from fignetctl.core.scene_building import ACTIVE, PASSIVE
 
 
@@ -34,14 +33,14 @@ from fignetctl.core.scene_building import ACTIVE, PASSIVE
 )
 @click.option(
     "--drop-height",
-    type=float,
+    type=options.FiniteFloatRange(min=0, max=1000),
     default=0.1,
     show_default=True,
     help="Start this far above the object's rest position (world units).",
 )
 @click.option(
     "--delta-z",
-    type=click.FloatRange(min=0),
+    type=options.FiniteFloatRange(min=0, max=1000),
     default=0.01,
     show_default=True,
     help="Δz: the history frame is this much higher (fall speed Δz per frame).",
@@ -49,14 +48,14 @@ from fignetctl.core.scene_building import ACTIVE, PASSIVE
 @click.option(
     "--start",
     default=None,
-    callback=_floats(3),
+    callback=options.finite_floats(3),
     metavar="X,Y,Z",
     help="Start position of the object's origin instead of --drop-height.",
 )
 @click.option(
     "--velocity",
     default=None,
-    callback=_floats(3),
+    callback=options.finite_floats(3),
     metavar="VX,VY,VZ",
     help="Start velocity (world units / s) instead of Δz per frame.",
 )
@@ -66,19 +65,38 @@ from fignetctl.core.scene_building import ACTIVE, PASSIVE
     help="Simulate a copy at the start; the original stays in place as a static object.",
 )
 @click.option(
-    "--active-mass", type=click.FloatRange(min=0, min_open=True), default=ACTIVE.mass, show_default=True
+    "--active-mass",
+    type=options.FiniteFloatRange(min=1e-9, max=1e9),
+    default=ACTIVE.mass,
+    show_default=True,
 )
-@click.option("--active-friction", type=click.FloatRange(min=0), default=ACTIVE.friction, show_default=True)
 @click.option(
-    "--active-restitution", type=click.FloatRange(min=0), default=ACTIVE.restitution, show_default=True
+    "--active-friction",
+    type=options.FiniteFloatRange(min=0, max=10),
+    default=ACTIVE.friction,
+    show_default=True,
 )
-@click.option("--passive-friction", type=click.FloatRange(min=0), default=PASSIVE.friction, show_default=True)
 @click.option(
-    "--passive-restitution", type=click.FloatRange(min=0), default=PASSIVE.restitution, show_default=True
+    "--active-restitution",
+    type=options.FiniteFloatRange(min=0, max=1),
+    default=ACTIVE.restitution,
+    show_default=True,
+)
+@click.option(
+    "--passive-friction",
+    type=options.FiniteFloatRange(min=0, max=10),
+    default=PASSIVE.friction,
+    show_default=True,
+)
+@click.option(
+    "--passive-restitution",
+    type=options.FiniteFloatRange(min=0, max=1),
+    default=PASSIVE.restitution,
+    show_default=True,
 )
 @click.option(
     "--dt",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=1 / 30,
     show_default="1/30, the bundled models' frame time",
     help="Seconds between frames.",

@@ -24,7 +24,7 @@ from fignetctl.commands import options
 )
 @click.option(
     "--every",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**5),
     default=10,
     show_default=True,
     help="Video: keep the sharpest frame of each run of N frames.",
@@ -76,13 +76,13 @@ from fignetctl.commands import options
 )
 @click.option(
     "--camera-height",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Scale: measured mean height (m) of the camera centres above the support plane.  [default: 0.5]",
 )
 @click.option(
     "--baseline",
-    type=(str, str, click.FloatRange(min=0, min_open=True)),
+    type=(str, str, options.FiniteFloatRange(min=0, min_open=True)),
     default=None,
     metavar="IMAGE_A IMAGE_B METRES",
     help="Scale: measured distance between the cameras of two images (instead of --camera-height).",

@@ -16,7 +16,7 @@ from fignetctl.commands import options
 @click.option(
     "-n",
     "--max-trajectories",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**7),
     default=None,
     help="Evaluate only the first N trajectories.",
 )

@@ -7,21 +7,6 @@ import click
 from fignetctl.commands import options
 
 
-def _floats(count):
-    def parse(ctx, param, value):
-        if value is None:
-            return None
-        try:
-            numbers = [float(x) for x in value.split(",")]
-        except ValueError:
-            numbers = []
-        if len(numbers) != count:
-            raise click.BadParameter(f"expected {count} comma-separated numbers, got {value!r}")
-        return numbers
-
-    return parse
-
-
 @click.command("extract-mesh")
 @click.argument("nerf", type=click.Path(dir_okay=False))
 @click.option(
@@ -65,7 +50,7 @@ def _floats(count):
 @click.option(
     "--box",
     default=None,
-    callback=_floats(6),
+    callback=options.finite_floats(6),
     metavar="X0,Y0,Z0,X1,Y1,Z1",
     help="The object's box V_o in world units, instead of masks.",
 )
@@ -85,49 +70,49 @@ def _floats(count):
 )
 @click.option(
     "--threshold",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=50.0,
     show_default=True,
     help="Density threshold σ_thr (1 / world unit).",
 )
 @click.option(
     "--faces",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=10**6),
     default=1000,
     show_default=True,
     help="Faces n_f after decimation (0: none).",
 )
 @click.option(
     "--padding",
-    type=click.FloatRange(0, 1),
+    type=options.FiniteFloatRange(0, 1),
     default=0.1,
     show_default=True,
     help="V_o grows by this fraction of its longest side.",
 )
 @click.option(
     "--max-size",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=0.25,
     show_default=True,
     help="Largest object extent (world units) for segmentation.",
 )
 @click.option(
     "--passive-margin",
-    type=click.FloatRange(min=0),
+    type=options.FiniteFloatRange(min=0),
     default=0.1,
     show_default=True,
     help="Environment box: beyond V_o horizontally (world units).",
 )
 @click.option(
     "--passive-below",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=0.05,
     show_default=True,
     help="Environment box: below the support surface.",
 )
 @click.option(
     "--passive-above",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Environment box: above the support.  [default: V_o's height]",
 )

@@ -24,25 +24,25 @@ from fignetctl.commands import options
 )
 @click.option(
     "--steps",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**7),
     default=None,
     help="Optimiser steps (a resumed run continues to this).  [default: the preset's]",
 )
 @click.option(
     "--max-image-side",
-    type=click.IntRange(min=8),
+    type=click.IntRange(min=8, max=8192),
     default=None,
     help="Downscale images so the longer side is at most this.  [default: the preset's]",
 )
 @click.option(
     "--holdout-every",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=10**5),
     default=None,
     help="Hold out views 0, k, 2k, ... for evaluation (0: none).  [default: 8]",
 )
 @click.option(
     "--rays-per-batch",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=2**20),
     default=None,
     help="Rays per optimiser step.  [default: the preset's]",
 )
@@ -143,7 +143,7 @@ def fit_nerf(
 )
 @click.option(
     "--scale",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Image scale against cameras.npz.  [default: the trained size]",
 )

@@ -26,7 +26,7 @@ def parse_shard(ctx, param, value):
 @click.option(
     "-n",
     "--num-trajectories",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**7),
     default=16,
     show_default=True,
     help="Trajectories of the whole run (all shards together).",
@@ -36,7 +36,7 @@ def parse_shard(ctx, param, value):
 )
 @click.option(
     "--duration",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Seconds per trajectory.  [default: 4]",
 )
@@ -57,7 +57,7 @@ def parse_shard(ctx, param, value):
 )
 @click.option(
     "--jobs",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=1024),
     default=1,
     show_default=True,
     help="Worker processes, each with its own PyBullet.",

@@ -1,8 +1,43 @@
-"""Options shared by the commands, defined once."""
+"""Options and parameter types shared by the commands, defined once."""
 
+import math
 from pathlib import Path
 
 import click
+
+
+class FiniteFloatRange(click.FloatRange):
+    """click.FloatRange that also refuses NaN and ±inf (FloatRange lets them through: NaN fails
+    no comparison, and inf passes a range without a maximum)."""
+
+    name = "finite float range"
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+def finite_floats(count: int, bound: float = 1e6):
+    """A click callback parsing `count` comma-separated finite numbers of magnitude at most
+    `bound` (a point, a velocity, a box), or None when the option is not given."""
+
+    def parse(ctx, param, value):
+        if value is None:
+            return None
+        try:
+            numbers = [float(x) for x in value.split(",")]
+        except ValueError:
+            numbers = []
+        if len(numbers) != count:
+            raise click.BadParameter(f"expected {count} comma-separated numbers, got {value!r}")
+        if not all(math.isfinite(x) and abs(x) <= bound for x in numbers):
+            raise click.BadParameter(f"{value!r}: each number must be finite and within ±{bound:g}")
+        return numbers
+
+    return parse
+
 
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace outputs that already exist.")
 seed_option = click.option(

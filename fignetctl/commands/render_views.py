@@ -10,7 +10,11 @@ from fignetctl.commands import options
     "-o", "--output", type=click.Path(file_okay=False), required=True, help="Capture folder to write."
 )
 @click.option(
-    "--views", type=click.IntRange(min=2), default=40, show_default=True, help="Still views on the orbit."
+    "--views",
+    type=click.IntRange(min=2, max=10**4),
+    default=40,
+    show_default=True,
+    help="Still views on the orbit.",
 )
 @click.option(
     "--width", type=click.IntRange(16, 4096), default=320, show_default=True, help="Image width, pixels."
@@ -28,7 +32,7 @@ from fignetctl.commands import options
 )
 @click.option(
     "--video-step",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**4),
     default=3,
     show_default=True,
     help="Video frames per view interval (video frame k*step is view k).",

@@ -38,26 +38,26 @@ from fignetctl.commands import options
 )
 @click.option(
     "--radius",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=1e-6, max=1e6),
     default=None,
     help="Orbit radius, m.  [default: the cameras' median distance, else 4x the volume's diagonal]",
 )
 @click.option(
     "--elevation",
-    type=click.FloatRange(-89, 89),
+    type=options.FiniteFloatRange(-89, 89),
     default=30.0,
     show_default=True,
     help="Orbit elevation, degrees.",
 )
 @click.option(
     "--orbit-frames",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**5),
     default=None,
     help="Frames per orbit turn.  [default: every output frame]",
 )
 @click.option(
     "--fov",
-    type=click.FloatRange(5, 170),
+    type=options.FiniteFloatRange(5, 170),
     default=50.0,
     show_default=True,
     help="Vertical field of view of an orbit without --cameras, degrees.",
@@ -95,14 +95,14 @@ from fignetctl.commands import options
 )
 @click.option(
     "--every",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**5),
     default=1,
     show_default=True,
     help="Render every K-th rollout step.",
 )
 @click.option(
     "--fps",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Video frame rate.  [default: real time, 1 / (dt * every)]",
 )

@@ -24,7 +24,7 @@ from fignetctl.commands import options
 )
 @click.option(
     "--steps",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**6),
     default=100,
     show_default=True,
     help="Frames to predict after the scene's first two.",
@@ -120,8 +120,8 @@ def _sim_scale(value):
         scale = float(value)
     except ValueError:
         scale = float("nan")
-    if not (math.isfinite(scale) and scale > 0):
-        raise click.BadParameter(f"{value!r} is not a positive number or 'auto'")
+    if not (math.isfinite(scale) and 1e-3 <= scale <= 1e3):
+        raise click.BadParameter(f"{value!r} is not 'auto' or a scale between 0.001 and 1000")
     return scale
 
 

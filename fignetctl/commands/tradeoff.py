@@ -58,31 +58,31 @@ KNOB_CHOICES = [
 )
 @click.option(
     "--trajectories",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**6),
     default=None,
     help="Trajectories rolled out per setting.  [default: 4]",
 )
 @click.option(
     "--steps",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**6),
     default=None,
     help="Rollout steps; the error is taken at the last.  [default: 30]",
 )
 @click.option(
     "--repeats",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=1000),
     default=None,
     help="Timed runs per setting and object (marching-cubes, bench-memory pairs).  [default: 3]",
 )
 @click.option(
     "--train-steps",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**8),
     default=None,
     help="Training steps of each message-passing model.  [default: 150]",
 )
 @click.option(
     "--threads",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=1024),
     default=1,
     show_default=True,
     help="Torch CPU threads while measuring; 0 keeps torch's default.",

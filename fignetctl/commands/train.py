@@ -31,27 +31,27 @@ from fignetctl.commands import options
 )
 @click.option(
     "--collision-radius",
-    type=click.FloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
     help="Face-face edge radius in metres.  [default: 0.2]",
 )
 @click.option(
     "--max-faces",
-    type=click.IntRange(min=4),
+    type=click.IntRange(min=4, max=10**6),
     default=256,
     show_default=True,
     help="Decimate each moving object's mesh to at most this many faces for the graph (static meshes stay whole).",
 )
 @click.option(
     "--max-static-edge",
-    type=click.FloatRange(min=0),
+    type=options.FiniteFloatRange(min=0),
     default=0.0,
     show_default=True,
     help="Subdivide static meshes (the floor) until no edge is longer than this (m); 0 keeps them whole.",
 )
 @click.option(
     "--max-vertex-offset",
-    type=click.FloatRange(min=0),
+    type=options.FiniteFloatRange(min=0),
     default=1.0,
     show_default=True,
     help="Clamp the face-face features' vertex offsets to this length (m), so huge floor triangles look like near ones; 0: no clamp.",
@@ -96,17 +96,21 @@ from fignetctl.commands import options
 )
 @click.option(
     "--steps",
-    type=click.IntRange(min=1),
+    type=click.IntRange(min=1, max=10**9),
     default=20000,
     show_default=True,
     help="Total optimiser steps (a resumed run continues to this).",
 )
 @click.option(
-    "--batch-size", type=click.IntRange(min=1), default=4, show_default=True, help="Scenes per step."
+    "--batch-size",
+    type=click.IntRange(min=1, max=4096),
+    default=4,
+    show_default=True,
+    help="Scenes per step.",
 )
 @click.option(
     "--learning-rate",
-    type=(click.FloatRange(min=0, min_open=True), click.FloatRange(min=0, min_open=True)),
+    type=(options.FiniteFloatRange(min=0, min_open=True), options.FiniteFloatRange(min=0, min_open=True)),
     default=(1e-3, 1e-4),
     show_default=True,
     metavar="INITIAL FINAL",
@@ -114,7 +118,7 @@ from fignetctl.commands import options
 )
 @click.option(
     "--workers",
-    type=click.IntRange(min=0),
+    type=click.IntRange(min=0, max=256),
     default=1,
     show_default=True,
     help="Processes that build the training graphs while this one runs the network (0: build them here).",
@@ -126,7 +130,7 @@ from fignetctl.commands import options
     show_default=True,
     help="The network's arithmetic in training: bf16 mixed precision, fp32, or auto (bf16 where the processor or GPU has native bfloat16).",
 )
-@click.option("--checkpoint-every", type=click.IntRange(min=1), default=500, show_default=True)
+@click.option("--checkpoint-every", type=click.IntRange(min=1, max=10**9), default=500, show_default=True)
 @click.option("--resume", is_flag=True, help="Continue the run saved in --output exactly where it stopped.")
 @click.option(
     "--log-csv",

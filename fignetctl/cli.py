@@ -30,6 +30,7 @@ COMMANDS = {
     "build-graph": "build_graph:build_graph",
     "rerender": "rerender:rerender",
     "tradeoff": "tradeoff:tradeoff",
+    "import-kubric": "import_kubric:import_kubric",
 }
 
 log = logging.getLogger("fignetctl")
@@ -92,6 +93,7 @@ _SUMMARIES = {
     "extract-mesh": "Object and environment meshes from a NeRF and point prompts: object.obj, volume.npz.",
     "build-graph": "A 2-frame scene (a drop) from extracted meshes, for rollout.",
     "rerender": "A rollout re-rendered through the NeRF by ray bending: PNG frames and an mp4.",
+    "import-kubric": "Kubric scenes (metadata.json and the assets' meshes) as a trajectory file.",
     "tradeoff": "Accuracy against seconds for each knob (decimation, radius, ...), Pareto front marked.",
 }
 

@@ -50,6 +50,7 @@ FILE_COMMANDS = [
     ("capture-poses --import-transforms {transforms} --images {images} -o {out}.npz", ["transforms"]),
     ("fit-nerf {images} {cameras} --steps 1 --device cpu -o {out}.pt", ["cameras"]),
     ("bench-memory {trajectory} --samples 1 --repeats 1 --size tiny", ["trajectory"]),
+    ("import-kubric {kubric} --assets {assets} -o {out}.h5", ["kubric"]),
 ]
 
 # (command line with {value}, what the value is)
@@ -151,6 +152,7 @@ def base_files(folder: Path) -> dict:
     for name in cameras.image_names:
         cv2.imwrite(str(images / name), np.full((height, width, 3), 90, np.uint8))
     export_transforms_json(folder / "transforms.json", cameras)
+    write_kubric_scene(folder)
     return {
         **{
             name: folder / f"{name}{suffix}"
@@ -165,7 +167,38 @@ def base_files(folder: Path) -> dict:
             )
         },
         "images": images,
+        "kubric": folder / "metadata.json",
+        "assets": folder / "assets",
     }
+
+
+def write_kubric_scene(folder: Path) -> None:
+    """A two-frame Kubric metadata.json with one cube, and the cube's mesh in assets/."""
+    import json
+
+    from fignetctl.core.obj import write_obj
+
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.5
+    faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1]]
+    faces += [[2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    (folder / "assets").mkdir(exist_ok=True)
+    write_obj(folder / "assets" / "cube.obj", corners, faces)
+    cube = {
+        "asset_id": "cube",
+        "positions": [[0, 0, 1.0], [0, 0, 0.9]],
+        "quaternions": [[1, 0, 0, 0]] * 2,
+        "velocities": [[0, 0, -1.0]] * 2,
+        "angular_velocities": [[0, 0, 0]] * 2,
+        "mass": 1.0,
+        "friction": 0.5,
+        "restitution": 0.5,
+        "size": 0.3,
+    }
+    document = {
+        "metadata": {"frame_rate": 24, "num_frames": 2, "gravity": [0, 0, -9.81]},
+        "instances": [cube],
+    }
+    (folder / "metadata.json").write_text(json.dumps(document))
 
 
 def damages(flips: int) -> list[str]:

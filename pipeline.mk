@@ -17,6 +17,9 @@
 #   video.mp4 (+ video_frames/)  rerender from camera VIEW, every EVERY-th frame at FPS
 #                       (slow motion: the frames are dt/sqrt(scale) apart), the path traced
 #   pipeline.rrd        rerun recording of the rollout
+#   <stage>.json        each stage's summary (--json): poses, PSNR, mesh sizes and outline IoU,
+#                       drop start, rollout scale and final positions, rerender timings, each
+#                       with fignetctl_version and the SHA-256 of the stage's inputs
 
 FIGNETCTL ?= .venv/bin/fignetctl
 PYTHON    ?= .venv/bin/python
@@ -51,28 +54,29 @@ $(SCENE)/capture/measurements.json:
 $(SCENE)/cameras.npz: $(SCENE)/capture/measurements.json
 	@$(call STAGE,capture-poses) $(FIGNETCTL) capture-poses --images $(SCENE)/capture/images \
 	  --camera-height $$($(PYTHON) -c "import json,sys; print(json.load(open(sys.argv[1]))['camera_height_m'])" $<) \
-	  --seed $(SEED) -o $@ --overwrite >/dev/null
+	  --seed $(SEED) --json $(SCENE)/capture-poses.json -o $@ --overwrite >/dev/null
 
 $(SCENE)/nerf.pt: $(SCENE)/cameras.npz
 	@$(call STAGE,fit-nerf) $(FIGNETCTL) fit-nerf $(SCENE)/capture/images $< --preset $(PRESET) $(NERF_FLAGS) \
-	  --device $(DEVICE) --seed $(SEED) -o $@ --overwrite >/dev/null
+	  --device $(DEVICE) --seed $(SEED) --json $(SCENE)/fit-nerf.json -o $@ --overwrite >/dev/null
 
 $(SCENE)/object/volume.npz: $(SCENE)/nerf.pt
 	@$(call STAGE,extract-mesh) $(FIGNETCTL) extract-mesh $< --cameras $(SCENE)/cameras.npz \
 	  --images $(SCENE)/capture/images --prompts $(SCENE)/capture/prompts.json $(if $(OBJECT),--object $(OBJECT)) \
-	  --faces $(FACES) $(EXTRACT_FLAGS) --device $(DEVICE) -o $(SCENE)/object --overwrite >/dev/null
+	  --faces $(FACES) $(EXTRACT_FLAGS) --device $(DEVICE) --json $(SCENE)/extract-mesh.json -o $(SCENE)/object --overwrite >/dev/null
 
 $(SCENE)/scene.h5: $(SCENE)/object/volume.npz
-	@$(call STAGE,build-graph) $(FIGNETCTL) build-graph $< --drop-height $(DROP) -o $@ --overwrite
+	@$(call STAGE,build-graph) $(FIGNETCTL) build-graph $< --drop-height $(DROP) --json $(SCENE)/build-graph.json -o $@ --overwrite
 
 $(SCENE)/rollout.h5: $(SCENE)/scene.h5
 	@$(call STAGE,rollout) $(FIGNETCTL) rollout $< --steps $(STEPS) --sim-scale auto --sleep --device $(DEVICE) \
-	  --rerun $(SCENE)/pipeline.rrd -o $@ --overwrite
+	  --rerun $(SCENE)/pipeline.rrd --json $(SCENE)/rollout.json -o $@ --overwrite
 	@$(PYTHON) benchmarks/drop_check.py $@ --json $(SCENE)/drop.json || true
 
 $(SCENE)/video.mp4: $(SCENE)/rollout.h5
 	@$(call STAGE,rerender) $(FIGNETCTL) rerender $(SCENE)/nerf.pt $(SCENE)/object/volume.npz $< \
-	  --cameras $(SCENE)/cameras.npz --camera $(VIEW) --every $(EVERY) --fps $(FPS) --trace --device $(DEVICE) -o $@ --overwrite >/dev/null
+	  --cameras $(SCENE)/cameras.npz --camera $(VIEW) --every $(EVERY) --fps $(FPS) --trace --device $(DEVICE) \
+	  --json $(SCENE)/rerender.json -o $@ --overwrite >/dev/null
 	@echo "$(SCENE): video $@, intermediate files and $(SCENE)/pipeline.rrd" >&2
 
 # Many scenes, one bundled capture per seed: make -j2 -f pipeline.mk scenes SEEDS="0 1 2"

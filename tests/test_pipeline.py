@@ -58,6 +58,11 @@ def test_the_main_job_runs_every_stage_and_leaves_its_files(tmp_path):
     assert len(list((scene / "video_frames").glob("*.png"))) == 3
     assert (scene / "pipeline.rrd").stat().st_size > 0
     check_provenance(scene)
+    for stage in ("capture-poses", "fit-nerf", "extract-mesh", "build-graph", "rollout", "rerender"):
+        summary = json.loads((scene / f"{stage}.json").read_text())
+        assert summary["fignetctl_version"] and summary["inputs_sha256"], stage
+    assert json.loads((scene / "fit-nerf.json").read_text())["held_out_psnr"] > 15
+    assert json.loads((scene / "rollout.json").read_text())["steps"] == 6
 
 
 def check_provenance(scene):

@@ -101,6 +101,7 @@ from fignetctl.core.scene_building import ACTIVE, PASSIVE
     show_default="1/30, the bundled models' frame time",
     help="Seconds between frames.",
 )
+@options.json_option
 @options.overwrite_option
 def build_graph(
     volume_path,
@@ -118,6 +119,7 @@ def build_graph(
     passive_friction,
     passive_restitution,
     dt,
+    json_path,
     overwrite,
 ):
     """Build the 2-frame scene (t-1, t) that `fignetctl rollout` simulates, from the meshes and
@@ -143,6 +145,7 @@ def build_graph(
     from fignetctl.core.volume import read_volume
 
     path = options.output_path(output, overwrite)
+    json_path = options.json_path_checked(json_path, overwrite)
     volume = read_volume(volume_path)
     folder = Path(volume_path).parent
     obj = load_obj(object_path or folder / volume.object_mesh)
@@ -166,6 +169,14 @@ def build_graph(
     )
     scene.attrs.update(as_strings(provenance))
     write_trajectories(path, scene)
+    summary = {
+        "output": str(path),
+        "object_faces": len(obj.faces),
+        "environment_faces": len(environment.faces),
+        "start": positions[1],
+        "history": positions[0],
+    }
+    options.write_summary(json_path, summary, provenance)
     click.echo(
         f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}",
         err=True,

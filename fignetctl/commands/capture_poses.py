@@ -102,6 +102,7 @@ from fignetctl.commands import options
 )
 @options.seed_option
 @options.rerun_option
+@options.json_option
 @options.overwrite_option
 def capture_poses(
     images_dir,
@@ -120,6 +121,7 @@ def capture_poses(
     output,
     seed,
     rerun_path,
+    json_path,
     overwrite,
 ):
     """Camera poses of a folder of images or a video, in metres with z up (cameras.npz).
@@ -139,6 +141,7 @@ def capture_poses(
     """
     from fignetctl.core import sfm, world_alignment
     from fignetctl.core.cameras import export_transforms_json, write_cameras
+    from fignetctl.core.provenance import read_provenance
 
     sources = {
         "--images": images_dir,
@@ -155,6 +158,7 @@ def capture_poses(
     if camera_height is not None and baseline is not None:
         raise click.UsageError("--camera-height and --baseline both set the scale; give one")
     output = options.output_path(output, overwrite)
+    json_path = options.json_path_checked(json_path, overwrite)
     if export_transforms is not None:
         export_transforms = options.output_path(export_transforms, overwrite, "--export-transforms")
     if rerun_path is not None:
@@ -188,6 +192,16 @@ def capture_poses(
         if staged is not None:
             staged.discard()
     click.echo(_summary(aligned, alignment), err=True)
+    summary = {
+        "output": str(output),
+        "cameras": len(aligned),
+        "sparse_points": len(aligned.points),
+        "up_from": alignment.gravity_source,
+        "support_plane_points": alignment.plane_inliers,
+        "scale": alignment.scale,
+        "scale_from": alignment.scale_source,
+    }
+    options.write_summary(json_path, summary, read_provenance(output))
     if export_transforms is not None:
         prefix = "" if images_dir is None else _relative_prefix(images_dir, export_transforms.parent)
         export_transforms_json(export_transforms, aligned, image_prefix=prefix)

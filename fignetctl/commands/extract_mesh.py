@@ -124,6 +124,7 @@ from fignetctl.commands import options
     help="Folder for object.obj, environment.obj, volume.npz, masks/.",
 )
 @options.device_option
+@options.json_option
 @options.overwrite_option
 def extract_mesh(
     nerf,
@@ -145,6 +146,7 @@ def extract_mesh(
     passive_above,
     output,
     device,
+    json_path,
     overwrite,
 ):
     """Extract an object's mesh and its environment's from NERF (paper, "Mesh Extraction").
@@ -165,6 +167,7 @@ def extract_mesh(
     """
     from fignetctl.core.mesh_extraction import ExtractionSettings
     from fignetctl.core.object_extraction import ExtractionInputs, run_extraction
+    from fignetctl.core.provenance import read_provenance
     from fignetctl.core.segmentation import SegmentationSettings
 
     given = [bool(prompt_texts or prompts_path), bool(masks_dir), box is not None]
@@ -173,6 +176,7 @@ def extract_mesh(
     out = Path(output)
     for name in ("object.obj", "environment.obj", "volume.npz"):
         options.output_path(out / name, overwrite)
+    json_path = options.json_path_checked(json_path, overwrite)
     settings = ExtractionSettings(
         resolution=resolution,
         threshold=threshold,
@@ -208,4 +212,6 @@ def extract_mesh(
         f"{summary['environment_faces']} faces; {summary['seconds']:.1f} s",
         err=True,
     )
+    provenance = read_provenance(out / "volume.npz")
+    options.write_summary(json_path, {"output": str(out), **summary}, provenance)
     click.echo(str(out))

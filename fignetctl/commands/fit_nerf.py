@@ -50,6 +50,7 @@ from fignetctl.commands import options
 @options.seed_option
 @options.device_option
 @options.rerun_option
+@options.json_option
 @options.overwrite_option
 def fit_nerf(
     images_dir,
@@ -64,6 +65,7 @@ def fit_nerf(
     seed,
     device,
     rerun_path,
+    json_path,
     overwrite,
 ):
     """Fit a radiance field to IMAGES_DIR posed by CAMERAS (cameras.npz).
@@ -89,6 +91,7 @@ def fit_nerf(
     if resume and overwrite:
         raise click.UsageError("--resume continues --output, --overwrite replaces it: give one")
     path = options.output_path(output, overwrite or resume)
+    json_path = options.json_path_checked(json_path, overwrite)
     device = options.resolve_device(device)
     if device == "cpu":
         torch.set_num_threads(max(1, min(torch.get_num_threads(), 4)))
@@ -125,6 +128,7 @@ def fit_nerf(
         from fignetctl.core.nerf.visualize import log_fit_to_rerun
 
         log_fit_to_rerun(rerun_path, trainer, renderings)
+    options.write_summary(json_path, {"output": str(path), **metrics}, trainer.provenance)
     click.echo(str(path))
 
 

@@ -109,6 +109,7 @@ from fignetctl.commands import options
 @click.option("--trace", is_flag=True, help="Draw the object's path (its projected centre over time).")
 @options.rerun_option
 @options.device_option
+@options.json_option
 @options.overwrite_option
 def rerender(
     nerf_path,
@@ -133,6 +134,7 @@ def rerender(
     trace,
     rerun_path,
     device,
+    json_path,
     overwrite,
 ):
     """Re-render the rollout ROLLOUT of the object in VOLUME through the NeRF NERF: each step's
@@ -147,6 +149,7 @@ def rerender(
     """
     from fignetctl.core import rerender as core
     from fignetctl.core.nerf.io import load_nerf
+    from fignetctl.core.provenance import stamp
     from fignetctl.core.trajectory import read_trajectories
     from fignetctl.core.volume import read_volume
 
@@ -157,6 +160,7 @@ def rerender(
     if camera_index is not None and cameras_path is None:
         raise click.UsageError("--camera needs --cameras cameras.npz")
     video = options.output_path(output, overwrite)
+    json_path = options.json_path_checked(json_path, overwrite)
     frames = options.output_path(frames_dir or _default_frames_dir(video), overwrite, "--frames")
     rrd = options.output_path(rerun_path, overwrite, "--rerun") if rerun_path else None
     volume = read_volume(volume_path)
@@ -187,6 +191,8 @@ def rerender(
         f"({100 * summary['bent_fraction']:.1f} % of pixels bent); frames in {frames}",
         err=True,
     )
+    provenance = stamp(nerf=nerf_path, volume=volume_path, rollout=rollout_path, cameras=cameras_path)
+    options.write_summary(json_path, {"output": str(video), "frames_dir": str(frames), **summary}, provenance)
     click.echo(str(video))
 
 

@@ -47,6 +47,7 @@ from fignetctl.commands import options
 @options.keep_out_option(default=True)
 @options.device_option
 @options.rerun_option
+@options.json_option
 @options.overwrite_option
 def rollout(
     scene,
@@ -60,6 +61,7 @@ def rollout(
     keep_out,
     device,
     rerun_path,
+    json_path,
     overwrite,
 ):
     """Predict --steps frames after the first two frames (t-1, t) of SCENE.
@@ -81,8 +83,10 @@ def rollout(
     """
     from fignetctl.core.model.rollout import RolloutError
     from fignetctl.core.model.runs import load_model, rollout_file
+    from fignetctl.core.provenance import read_provenance
 
     path = options.output_path(output, overwrite)
+    json_path = options.json_path_checked(json_path, overwrite)
     simulator = load_model(model_path, options.resolve_device(device))
     with options.progress(total=steps, unit="step", desc="rollout") as bar:
         try:
@@ -108,6 +112,16 @@ def rollout(
             f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)",
             err=True,
         )
+    trajectory = next(iter(result.trajectories.values()))
+    summary = {
+        "output": str(path),
+        "steps": trajectory.num_frames - 2,
+        "sim_scale": scale,
+        "frame_seconds": float(result.dt),
+        "final_positions": trajectory.positions[-1][~trajectory.static],
+        "error": None if error is None else str(error),
+    }
+    options.write_summary(json_path, summary, read_provenance(path))
     if error is not None:
         raise click.ClickException(f"{error} (written to {path})")
     click.echo(str(path))

@@ -85,56 +85,66 @@ def _scale(info: dict, where: str) -> float:
     return float(scale[0])
 
 
+def _instance(info, frames: int, where: str) -> dict:
+    """One instance's fields, checked: asset, scale, motion (T, 3|4) and properties."""
+    if not isinstance(info, dict) or not isinstance(info.get("asset_id"), str):
+        raise FormatError(f"{where}: no 'asset_id'")
+    motion = {
+        field: _array(info, field, (frames, width), where)
+        for field, width in (
+            ("positions", 3),
+            ("quaternions", 4),
+            ("velocities", 3),
+            ("angular_velocities", 3),
+        )
+    }
+    norms = np.linalg.norm(motion["quaternions"], axis=1, keepdims=True)
+    if np.any(norms < 1e-6):
+        raise FormatError(f"{where}: a quaternion is zero")
+    motion["quaternions"] = motion["quaternions"] / norms
+    mass, friction, restitution = (
+        float(_array(info, key, (), where)) for key in ("mass", "friction", "restitution")
+    )
+    if min(mass, friction, restitution) < 0:
+        raise FormatError(f"{where}: mass, friction and restitution must not be negative")
+    dynamic = bool(info.get("is_dynamic", True))
+    return {
+        "asset": info["asset_id"],
+        "scale": _scale(info, where),
+        "static": not dynamic,
+        "properties": (mass if dynamic else 0.0, friction, restitution),
+        **motion,
+    }
+
+
 def scene_trajectory(document: dict, floor_friction: float, floor_restitution: float, where: str):
-    """(Trajectory, dt, gravity) of one metadata document."""
+    """(Trajectory, dt, gravity) of one metadata document, the floor first."""
     frames = len(document["instances"][0].get("positions", []))
     if frames < 2:
         raise FormatError(f"{where}: instances have {frames} frames; a trajectory needs 2 or more")
-    names, scales, positions, quaternions, velocities, spins, static, properties = (
-        [],
-        [],
-        [],
-        [],
-        [],
-        [],
-        [],
-        [],
+    objects = [
+        _instance(info, frames, f"{where}: instance {i}") for i, info in enumerate(document["instances"])
+    ]
+    floor_motion = {"positions": np.zeros((frames, 3)), "quaternions": np.tile([1.0, 0, 0, 0], (frames, 1))}
+
+    def column(field):  # (T, 1 + instances, width): the floor, then the instances
+        fill = floor_motion.get(field, np.zeros((frames, 3)))
+        return np.stack([fill, *(o[field] for o in objects)], axis=1).astype(np.float32)
+
+    properties = np.array(
+        [(0.0, floor_friction, floor_restitution), *(o["properties"] for o in objects)], np.float32
     )
-    for index, info in enumerate(document["instances"]):
-        at = f"{where}: instance {index}"
-        if not isinstance(info, dict) or not isinstance(info.get("asset_id"), str):
-            raise FormatError(f"{at}: no 'asset_id'")
-        names.append(info["asset_id"])
-        scales.append(_scale(info, at))
-        positions.append(_array(info, "positions", (frames, 3), at))
-        quaternions.append(_array(info, "quaternions", (frames, 4), at))
-        velocities.append(_array(info, "velocities", (frames, 3), at))
-        spins.append(_array(info, "angular_velocities", (frames, 3), at))
-        dynamic = bool(info.get("is_dynamic", True))
-        static.append(not dynamic)
-        values = [float(_array(info, key, (), at)) for key in ("mass", "friction", "restitution")]
-        if min(values) < 0:
-            raise FormatError(f"{at}: mass, friction and restitution must not be negative")
-        properties.append([values[0] if dynamic else 0.0, *values[1:]])
-    stack = lambda arrays, fill: np.stack([fill, *arrays], axis=1).astype(np.float32)  # noqa: E731
-    quaternion_norms = np.linalg.norm(np.stack(quaternions), axis=-1)
-    if np.any(quaternion_norms < 1e-6):
-        raise FormatError(f"{where}: an instance has a zero quaternion")
-    properties = np.array([[0.0, floor_friction, floor_restitution], *properties], np.float32)
     trajectory = Trajectory(
-        mesh_names=np.array([FLOOR, *names], dtype=object),
-        scales=np.array([1.0, *scales], np.float32),
-        positions=stack(positions, np.zeros((frames, 3))),
-        quaternions=stack(
-            [q / np.linalg.norm(q, axis=1, keepdims=True) for q in quaternions],
-            np.tile([1.0, 0, 0, 0], (frames, 1)),
-        ),
-        static=np.array([True, *static]),
+        mesh_names=np.array([FLOOR, *(o["asset"] for o in objects)], dtype=object),
+        scales=np.array([1.0, *(o["scale"] for o in objects)], np.float32),
+        positions=column("positions"),
+        quaternions=column("quaternions"),
+        static=np.array([True, *(o["static"] for o in objects)]),
         mass=properties[:, 0],
         friction=properties[:, 1],
         restitution=properties[:, 2],
-        velocities=stack(velocities, np.zeros((frames, 3))),
-        angular_velocities=stack(spins, np.zeros((frames, 3))),
+        velocities=column("velocities"),
+        angular_velocities=column("angular_velocities"),
     )
     metadata = document["metadata"]
     frame_rate = float(_array(metadata, "frame_rate", (), where))

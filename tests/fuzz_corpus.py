@@ -38,13 +38,13 @@ FILE_COMMANDS = [
     ("rollout {trajectory} --steps 2 -o {out}.h5", ["trajectory"]),
     ("rollout {trajectory} --model {model} --steps 2 -o {out}.h5", ["model"]),
     ("evaluate {trajectory} --model {model} --max-trajectories 1 -o {out}.json", ["trajectory", "model"]),
-    ("train {trajectory} --steps 1 --size tiny -o {out}.pt", ["trajectory"]),
+    ("train {trajectory} --state positions --steps 1 --size tiny -o {out}.pt", ["trajectory"]),
     ("build-graph {volume} -o {out}.h5", ["volume"]),
     ("build-graph {volume} --object {object} -o {out}.h5", ["object"]),
     ("render-nerf {nerf} {cameras} -o {out}", ["nerf", "cameras"]),
     ("extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --device cpu -o {out}", ["nerf"]),
     (
-        "rerender {nerf} {volume} {trajectory} --cameras {cameras} --device cpu -o {out}.mp4",
+        "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera 0 --device cpu -o {out}.mp4",
         ["trajectory", "volume"],
     ),
     ("capture-poses --import-transforms {transforms} --images {images} -o {out}.npz", ["transforms"]),
@@ -61,9 +61,9 @@ OPTION_COMMANDS = [
     "make-dataset --preset movi-b -n 1 --seed {value} -o {out}.h5",
     "rollout {trajectory} --steps {value} -o {out}.h5",
     "rollout {trajectory} --steps 2 --sim-scale {value} -o {out}.h5",
-    "train {trajectory} --steps {value} --size tiny -o {out}.pt",
-    "train {trajectory} --steps 1 --batch-size {value} --size tiny -o {out}.pt",
-    "train {trajectory} --steps 1 --learning-rate {value} --size tiny -o {out}.pt",
+    "train {trajectory} --state positions --steps {value} --size tiny -o {out}.pt",
+    "train {trajectory} --state positions --steps 1 --batch-size {value} --size tiny -o {out}.pt",
+    "train {trajectory} --state positions --steps 1 --learning-rate {value} --size tiny -o {out}.pt",
     "build-graph {volume} --drop-height {value} -o {out}.h5",
     "build-graph {volume} --active-mass {value} -o {out}.h5",
     "fit-nerf {images} {cameras} --steps {value} --device cpu -o {out}.pt",
@@ -72,14 +72,14 @@ OPTION_COMMANDS = [
     "extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --resolution {value} --device cpu -o {out}",
     "extract-mesh {nerf} --cameras {cameras} --box {value} --device cpu -o {out}",
     "extract-mesh {nerf} --cameras {cameras} --box {value},-0.15,-0.6,0.3,0.15,-0.2 --device cpu -o {out}",
-    "rerender {nerf} {volume} {trajectory} --cameras {cameras} --fps {value} --device cpu -o {out}.mp4",
+    "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera 0 --fps {value} --device cpu -o {out}.mp4",
     "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera {value} --device cpu -o {out}.mp4",
     "evaluate {trajectory} --max-trajectories {value}",
     "build-graph {volume} --start {value},0,0 -o {out}.h5",
     "build-graph {volume} --velocity 0,0,{value} -o {out}.h5",
     "build-graph {volume} --active-restitution {value} -o {out}.h5",
     "fit-nerf {images} {cameras} --steps 1 --max-image-side {value} --device cpu -o {out}.pt",
-    "rerender {nerf} {volume} {trajectory} --cameras {cameras} --every {value} --device cpu -o {out}.mp4",
+    "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera 0 --every {value} --device cpu -o {out}.mp4",
     "rerender {nerf} {volume} {trajectory} --orbit --radius {value} --device cpu -o {out}.mp4",
     "show {trajectory} --trajectory {value}",
     "render-nerf {nerf} {cameras} --views {value} -o {out}",
@@ -151,7 +151,7 @@ def base_files(folder: Path) -> dict:
     images.mkdir(exist_ok=True)
     for name in cameras.image_names:
         cv2.imwrite(str(images / name), np.full((height, width, 3), 90, np.uint8))
-    export_transforms_json(folder / "transforms.json", cameras)
+    export_transforms_json(folder / "transforms.json", cameras, image_prefix="images/")
     write_kubric_scene(folder)
     return {
         **{

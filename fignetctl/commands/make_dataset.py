@@ -32,7 +32,10 @@ def parse_shard(ctx, param, value):
     help="Trajectories of the whole run (all shards together).",
 )
 @click.option(
-    "--fps", type=int, default=None, help="Recorded frames per second; must divide 240.  [default: 30]"
+    "--fps",
+    type=click.IntRange(1, 240),
+    default=None,
+    help="Recorded frames per second; must divide 240.  [default: 30]",
 )
 @click.option(
     "--duration",

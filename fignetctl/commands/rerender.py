@@ -29,7 +29,7 @@ from fignetctl.commands import options
 @click.option(
     "--camera",
     "camera_index",
-    type=int,
+    type=click.IntRange(-(10**6), 10**6),
     default=None,
     help="Render from this view of --cameras (negative: from the end).",
 )
@@ -102,7 +102,7 @@ from fignetctl.commands import options
 )
 @click.option(
     "--fps",
-    type=options.FiniteFloatRange(min=0, min_open=True),
+    type=options.FiniteFloatRange(min=0.01, max=1000),
     default=None,
     help="Video frame rate.  [default: real time, 1 / (dt * every)]",
 )

@@ -35,7 +35,11 @@ from fignetctl.commands import options
     help="Render one frame (--frame) to PNG.",
 )
 @click.option(
-    "--frame", type=int, default=-1, show_default=True, help="Frame for --png (negative counts from the end)."
+    "--frame",
+    type=click.IntRange(-(10**9), 10**9),
+    default=-1,
+    show_default=True,
+    help="Frame for --png (negative counts from the end).",
 )
 @options.rerun_option
 @options.overwrite_option

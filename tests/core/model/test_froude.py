@@ -143,5 +143,5 @@ def test_the_rollout_command_takes_auto_and_refuses_nonsense(tmp_path):
     result = CliRunner().invoke(
         cli, ["rollout", str(tmp_path / "throw.h5"), "--sim-scale", "-2", "-o", str(tmp_path / "r.h5")]
     )
-    assert result.exit_code != 0 and "is not a positive number or 'auto'" in result.output
+    assert result.exit_code != 0 and "is not 'auto' or a scale between 0.001 and 1000" in result.output
     assert not (tmp_path / "r.h5").exists()

@@ -213,8 +213,9 @@ def capture_poses(
 def _poses_from_video(video_path, frames_dir, every, settings):
     """Pick frames into a staged folder and run SfM on them; the folder is committed later."""
     from fignetctl.core import sfm, video_frames
+    from fignetctl.core.atomic import StagedDirectory
 
-    staged = video_frames.StagedFolder(frames_dir)
+    staged = StagedDirectory(frames_dir, ("frame_*.png",))
     try:
         picks = video_frames.pick_frames(video_path, staged.path, every=every)
         cameras = sfm.run_sfm(staged.path, [p.name for p in picks], settings)

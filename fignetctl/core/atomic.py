@@ -1,9 +1,13 @@
-"""Atomic outputs: write to a temporary file beside the target, then rename."""
+"""Atomic outputs: write to a temporary file (or folder) beside the target, then rename."""
 
 import contextlib
+import fnmatch
 import os
+import shutil
 import tempfile
 from pathlib import Path
+
+from fignetctl.errors import FignetError
 
 
 @contextlib.contextmanager
@@ -27,6 +31,72 @@ def atomic_path(path, suffix=None):
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+class StagedDirectory:
+    """A folder built in a temporary sibling of `target` and moved onto it by `commit()`.
+
+    Until then an existing `target` (an earlier good result) is untouched, and `discard()` (or
+    leaving the `with` block by an exception) removes the temporary folder. `owned` names the
+    entries the command writes (glob patterns): a `target` that holds anything else is refused,
+    at once and again at commit, because committing replaces the whole folder.
+    """
+
+    def __init__(self, target, owned):
+        self.target, self.owned = Path(target), tuple(owned)
+        self.check_owned()
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        self.path = Path(
+            tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp", dir=self.target.parent)
+        )
+        os.chmod(self.path, 0o777 & ~_current_umask())
+
+    def check_owned(self) -> None:
+        """FignetError when the existing target holds entries this command does not write."""
+        if not self.target.is_dir():
+            return
+        foreign = sorted(
+            entry.name
+            for entry in self.target.iterdir()
+            if not any(fnmatch.fnmatchcase(entry.name, pattern) for pattern in self.owned)
+        )
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+            raise FignetError(
+                f"{self.target}: holds {shown}, which this command does not write; replacing the "
+                "folder would delete them, so move them or write elsewhere"
+            )
+
+    def commit(self) -> Path:
+        self.check_owned()
+        old = None
+        if self.target.exists():
+            old = Path(
+                tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".old", dir=self.target.parent)
+            )
+            os.replace(self.target, old / "previous")
+        os.replace(self.path, self.target)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return self.target
+
+    def discard(self) -> None:
+        shutil.rmtree(self.path, ignore_errors=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.discard()  # after a commit there is nothing left to remove
+
+
+@contextlib.contextmanager
+def atomic_directory(path, owned):
+    """Yield a temporary folder beside `path` that replaces it when the block ends without an
+    error (StagedDirectory)."""
+    with StagedDirectory(path, owned) as staged:
+        yield staged.path
+        staged.commit()
 
 
 def _current_umask():

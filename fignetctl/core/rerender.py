@@ -26,11 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
-import shutil
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -352,27 +348,6 @@ def draw_trace(image, camera, positions, colour=(255, 210, 0)):
 # ----------------------------------------------------------------------------- outputs
 
 
-@contextlib.contextmanager
-def atomic_directory(path):
-    """Yield a temporary folder beside `path`; on success it replaces `path` (an existing
-    folder is moved aside first and removed after), on failure it is removed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    try:
-        yield tmp
-        old = None
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            os.replace(path, old / path.name)
-        os.replace(tmp, path)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
 def to_uint8(rgb) -> np.ndarray:
     """(H, W, 3) float in [0, 1] -> uint8."""
     return np.clip(np.round(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8)
@@ -419,7 +394,7 @@ def write_rerender(
     per frame, bent pixels only), bent_fraction (mean share of bent pixels)."""
     import cv2
 
-    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.atomic import atomic_directory, atomic_path
     from fignetctl.core.media import Mp4Writer
     from fignetctl.core.rerun_log import recording
 
@@ -427,7 +402,7 @@ def write_rerender(
     width, height = int(cameras[0][2]), int(cameras[0][3])
     frame_seconds, bent_fractions = [], []
     with contextlib.ExitStack() as stack:
-        tmp_dir = stack.enter_context(atomic_directory(frames_dir))
+        tmp_dir = stack.enter_context(atomic_directory(frames_dir, ("frame_*.png",)))
         tmp_video = stack.enter_context(atomic_path(video_path, suffix=".mp4"))
         writer = stack.enter_context(Mp4Writer(tmp_video, float(fps), width, height))
         log = (

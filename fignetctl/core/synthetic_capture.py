@@ -46,7 +46,6 @@ import json
 import logging
 import math
 import os
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -54,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core import pinhole
+from fignetctl.core.atomic import atomic_directory
 from fignetctl.core.obj import read_obj, write_obj
 from fignetctl.errors import FignetError
 
@@ -194,7 +194,7 @@ def render_capture(
     out_dir = Path(out_dir)
     if out_dir.exists() and not overwrite:
         raise FignetError(f"{out_dir} exists; pass --overwrite to replace it")
-    with _atomic_folder(out_dir) as tmp:
+    with atomic_directory(out_dir, CAPTURE_ENTRIES) as tmp:
         return _render_into(tmp, config, progress or (lambda iterable, **kw: iterable)) | {
             "output": str(out_dir)
         }
@@ -760,40 +760,9 @@ def scene_document(objects, config, cameras, names) -> dict:
     }
 
 
+CAPTURE_ENTRIES = ("images", "ground_truth", "video.mp4", "prompts.json", "measurements.json")
+"""What a capture folder holds: replacing one that holds anything else is refused."""
+
+
 def _write_json(path: Path, document: dict) -> None:
     path.write_text(json.dumps(document, indent=1))
-
-
-class _atomic_folder:
-    """Build a folder in a temporary sibling and rename it onto `path` on success; an existing
-    `path` is replaced only then, and a failure leaves it untouched."""
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-
-    def __enter__(self) -> Path:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent))
-        os.chmod(self.tmp, 0o777 & ~_umask())
-        return self.tmp
-
-    def __exit__(self, kind, error, traceback):
-        if kind is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return False
-        old = None
-        if self.path.exists():
-            old = self.path.with_name(f".{self.path.name}.old-{os.getpid()}")
-            os.replace(self.path, old)
-        os.replace(self.tmp, self.path)
-        if old is not None and old.is_dir():
-            shutil.rmtree(old, ignore_errors=True)
-        elif old is not None:
-            old.unlink()
-        return False
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -13,8 +13,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -129,44 +127,3 @@ def _write_frame(frame: PickedFrame, folder: Path) -> PickedFrame:
     if not cv2.imwrite(str(folder / frame.name), frame.image):
         raise FignetError(f"{folder / frame.name}: could not be written")
     return dataclasses.replace(frame, image=None)
-
-
-class StagedFolder:
-    """A folder built beside its final place and moved there only by `commit()`.
-
-    Until then the target (an earlier good result) is untouched; a failed run leaves nothing.
-    """
-
-    def __init__(self, target):
-        self.target = Path(target)
-        self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.path = Path(
-            tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp", dir=self.target.parent)
-        )
-        os.chmod(self.path, 0o777 & ~_umask())
-
-    def commit(self) -> Path:
-        old = None
-        if self.target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.old.", dir=self.target.parent))
-            os.replace(self.target, old / "previous")
-        os.replace(self.path, self.target)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-        return self.target
-
-    def discard(self) -> None:
-        shutil.rmtree(self.path, ignore_errors=True)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.discard()
-        return False
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -128,10 +128,16 @@ def test_existing_output_needs_overwrite(inputs, tmp_path):
     video = tmp_path / "v.mp4"
     args = ("--cameras", inputs["cameras"], "--camera", 1, "--every", 3, "-o", video)
     assert run(inputs, *args).exit_code == 0
-    stale = tmp_path / "v_frames" / "stale.png"
+    stale = tmp_path / "v_frames" / "frame_00099.png"  # from an earlier, longer run
     stale.write_bytes(b"")
     result = run(inputs, *args)
     assert result.exit_code != 0 and "--overwrite" in result.output
+    notes = tmp_path / "v_frames" / "notes.txt"  # not a frame: --overwrite must not delete it
+    notes.write_text("mine")
+    refused = run(inputs, *args, "--overwrite")
+    assert refused.exit_code == 1 and "holds notes.txt, which this command does not write" in refused.output
+    assert notes.exists() and stale.exists()
+    notes.unlink()
     assert run(inputs, *args, "--overwrite").exit_code == 0
     assert not stale.exists() and len(list((tmp_path / "v_frames").glob("*.png"))) == 2
 

@@ -167,15 +167,22 @@ def test_video_that_does_not_open(tmp_path):
         video_frames.pick_frames(tmp_path / "missing.mp4", tmp_path / "frames")
 
 
-def test_staged_folder_replaces_only_on_commit(tmp_path):
+def test_staged_folder_replaces_only_on_commit_and_only_what_it_owns(tmp_path):
+    from fignetctl.core.atomic import StagedDirectory
+
     target = tmp_path / "images"
     target.mkdir()
-    (target / "old.png").write_text("old")
-    with video_frames.StagedFolder(target) as staged:
-        (staged.path / "new.png").write_text("new")
-    assert [p.name for p in target.iterdir()] == ["old.png"]
-    with video_frames.StagedFolder(target) as staged:
-        (staged.path / "new.png").write_text("new")
+    (target / "frame_1.png").write_text("old")
+    with StagedDirectory(target, ("frame_*.png",)) as staged:
+        (staged.path / "frame_2.png").write_text("new")
+    assert [p.name for p in target.iterdir()] == ["frame_1.png"]
+    with StagedDirectory(target, ("frame_*.png",)) as staged:
+        (staged.path / "frame_2.png").write_text("new")
         staged.commit()
-    assert [p.name for p in target.iterdir()] == ["new.png"]
+    assert [p.name for p in target.iterdir()] == ["frame_2.png"]
+    assert [p.name for p in tmp_path.iterdir()] == ["images"]
+    (target / "notes.txt").write_text("mine")
+    with pytest.raises(FignetError, match="holds notes.txt, which this command does not write"):
+        StagedDirectory(target, ("frame_*.png",))
+    assert sorted(p.name for p in target.iterdir()) == ["frame_2.png", "notes.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["images"]

@@ -143,7 +143,7 @@ def test_an_existing_output_is_kept_unless_overwrite_and_a_failure_leaves_it(tmp
     small = dict(views=3, width=24, height=16, texture_size=64, points=20, video=False, prompts_per_object=2)
     out = tmp_path / "scene"
     out.mkdir()
-    (out / "keep.txt").write_text("old")
+    (out / "prompts.json").write_text("old")  # an earlier capture's file
     with pytest.raises(FignetError, match="exists; pass --overwrite"):
         capture.render_capture(out, **small)
 
@@ -153,10 +153,16 @@ def test_an_existing_output_is_kept_unless_overwrite_and_a_failure_leaves_it(tmp
     monkeypatch.setattr(capture, "sample_points", broken)
     with pytest.raises(FignetError, match="disk full"):
         capture.render_capture(out, overwrite=True, **small)
-    assert (out / "keep.txt").read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+    assert (out / "prompts.json").read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "scene"
+    ]
     monkeypatch.undo()
+    (out / "notes.txt").write_text("mine")  # not the capture's: replacing the folder would delete it
+    with pytest.raises(FignetError, match="holds notes.txt, which this command does not write"):
+        capture.render_capture(out, overwrite=True, **small)
+    (out / "notes.txt").unlink()
     capture.render_capture(out, overwrite=True, **small)
-    assert not (out / "keep.txt").exists() and (out / "prompts.json").is_file()
+    assert (out / "prompts.json").read_text() != "old" and (out / "images").is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
 
 

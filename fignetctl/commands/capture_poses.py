@@ -75,6 +75,15 @@ from fignetctl.commands import options
     help="Up from the support plane in the sparse points, the cameras' mean up, auto (plane, else cameras), or none (keep the input's frame and scale).",
 )
 @click.option(
+    "--support-plane",
+    type=click.Choice(["largest", "highest", "lowest"]),
+    default="largest",
+    show_default=True,
+    help="With several horizontal planes in the points (a table on a floor), which one is the support: "
+    "the one holding the most points, the highest (a table top) or the lowest (the floor). The planes "
+    "found are printed; --camera-height is measured from the one chosen.",
+)
+@click.option(
     "--camera-height",
     type=options.FiniteFloatRange(min=0, min_open=True),
     default=None,
@@ -115,6 +124,7 @@ def capture_poses(
     import_colmap,
     import_cameras,
     gravity,
+    support_plane,
     camera_height,
     baseline,
     export_transforms,
@@ -165,7 +175,11 @@ def capture_poses(
         rerun_path = options.output_path(rerun_path, overwrite, "--rerun")
     settings = sfm.SfmSettings(matcher=matcher, camera_model=camera_model, seed=seed)
     alignment_settings = world_alignment.AlignmentSettings(
-        gravity=gravity, camera_height=camera_height, baseline=baseline, seed=seed
+        gravity=gravity,
+        camera_height=camera_height,
+        baseline=baseline,
+        seed=seed,
+        support_plane=support_plane,
     )
 
     staged = None
@@ -200,6 +214,7 @@ def capture_poses(
         "support_plane_points": alignment.plane_inliers,
         "scale": alignment.scale,
         "scale_from": alignment.scale_source,
+        "support_planes": list(alignment.planes),
     }
     options.write_summary(json_path, summary, read_provenance(output))
     if export_transforms is not None:
@@ -249,7 +264,8 @@ def _relative_prefix(images_dir, json_dir) -> str:
 
 
 def _summary(cameras, alignment) -> str:
-    return (
+    """The success line, and one line per candidate support plane when there are several."""
+    line = (
         f"{len(cameras)} cameras, {len(cameras.points)} sparse points; up from {alignment.gravity_source}"
         + (
             f" ({alignment.plane_inliers} points on the support plane, now z = 0)"
@@ -257,6 +273,20 @@ def _summary(cameras, alignment) -> str:
             else ""
         )
         + f"; scale from {alignment.scale_source}"
+    )
+    if len(alignment.planes) < 2:
+        return line
+    rows = [
+        f"  {'->' if plane['chosen'] else '  '} z = {plane['height']:+.3f} m: {100 * plane['share']:.0f} % of the "
+        f"points, {plane['extent'][0]:.2f} x {plane['extent'][1]:.2f} m"
+        for plane in alignment.planes
+    ]
+    return "\n".join(
+        [
+            line,
+            f"{len(rows)} horizontal planes (highest first; --support-plane largest|highest|lowest chooses):",
+            *rows,
+        ]
     )
 
 

@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 DEFAULT_CAMERA_HEIGHT = 0.5  # metres: a hand-held camera looking down at a table top
 MAX_PLANE_TILT_DEG = 45.0  # planes steeper than this from the cameras' up are walls
 MIN_PLANE_INLIER_FRACTION = 0.15
+MIN_CANDIDATE_FRACTION = 0.05  # a parallel plane holding this share of the points is a candidate
+SUPPORT_CHOICES = ("largest", "highest", "lowest")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,6 +51,9 @@ class AlignmentSettings:
     """RANSAC plane hypotheses."""
     seed: int = 0
     """RANSAC's random seed."""
+    support_plane: str = "largest"
+    """Which of the horizontal planes in the points is the support: the one holding the most
+    points, or the highest or the lowest holding at least MIN_CANDIDATE_FRACTION of them."""
 
 
 @dataclasses.dataclass
@@ -61,6 +66,10 @@ class Alignment:
     gravity_source: str  # 'plane', 'cameras' or 'none'
     scale_source: str
     plane_inliers: int = 0
+    planes: tuple = ()
+    """The candidate support planes, parallel to the chosen one: dicts of height (m, above the
+    chosen plane after scaling), share (of the sparse points), extent (m, x and y of the
+    middle 90 % of their points) and chosen (bool); highest first."""
 
     def matrix(self) -> np.ndarray:
         """(4, 4) homogeneous matrix of the similarity."""
@@ -268,9 +277,59 @@ def find_alignment(cameras: Cameras, settings: AlignmentSettings = AlignmentSett
     if settings.gravity == "none":
         return Alignment(1.0, np.eye(3), np.zeros(3), "none", "none (kept)")
     up, on_plane, source, inliers = gravity(cameras, settings)
+    candidates = parallel_planes(cameras, up, on_plane, settings) if source == "plane" else []
+    if candidates:
+        chosen = choose_plane(candidates, settings.support_plane)
+        if settings.support_plane != "largest":  # the largest is the RANSAC plane itself
+            on_plane, inliers = on_plane + chosen["offset"] * up, chosen["count"]
     rotation = rotation_between(up, [0.0, 0.0, 1.0])
     scale, scale_source = scale_factor(cameras, rotation, on_plane, settings)
-    return Alignment(scale, rotation, on_plane, source, scale_source, inliers)
+    planes = tuple(
+        {
+            "height": scale * (plane["offset"] - chosen["offset"]),
+            "share": plane["count"] / len(cameras.points),
+            "extent": [scale * e for e in plane["extent"]],
+            "chosen": plane is chosen,
+        }
+        for plane in candidates
+    )
+    return Alignment(scale, rotation, on_plane, source, scale_source, inliers, planes)
+
+
+def parallel_planes(cameras: Cameras, up, on_plane, settings: AlignmentSettings) -> list:
+    """Horizontal planes parallel to the RANSAC one, below the cameras: the densest height bands
+    of the points (band width the RANSAC threshold), taken out one by one while one holds at
+    least MIN_CANDIDATE_FRACTION of the points. Each: offset along `up` from `on_plane`, count,
+    extent (middle 90 % across the plane, unscaled); highest first."""
+    points = np.asarray(cameras.points, float)
+    heights = (points - on_plane) @ up
+    below = heights < ((cameras.centres - on_plane) @ up).min()
+    band = settings.plane_threshold * scene_size(points, cameras)
+    across = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]  # two axes in the plane
+    planes, left = [], below.copy()
+    while left.sum() >= max(3, MIN_CANDIDATE_FRACTION * len(points)):
+        sorted_heights = np.sort(heights[left])
+        counts = np.searchsorted(sorted_heights, sorted_heights + 2 * band) - np.arange(len(sorted_heights))
+        start = int(np.argmax(counts))
+        if counts[start] < MIN_CANDIDATE_FRACTION * len(points):
+            break
+        offset = float(np.median(sorted_heights[start : start + counts[start]]))
+        members = left & (np.abs(heights - offset) < band)
+        low, high = np.percentile(points[members] @ across, [5, 95], axis=0)
+        planes.append({"offset": offset, "count": int(members.sum()), "extent": (high - low).tolist()})
+        left &= ~(np.abs(heights - offset) < 2 * band)
+    return sorted(planes, key=lambda plane: -plane["offset"])
+
+
+def choose_plane(candidates: list, choice: str) -> dict:
+    """The candidate `choice` names: 'largest' (most points), 'highest' or 'lowest'."""
+    if choice not in SUPPORT_CHOICES:
+        raise FignetError(f"support plane {choice!r} is not one of {', '.join(SUPPORT_CHOICES)}")
+    if choice == "highest":
+        return candidates[0]
+    if choice == "lowest":
+        return candidates[-1]
+    return max(candidates, key=lambda plane: plane["count"])
 
 
 def apply_similarity(cameras: Cameras, scale: float, rotation, translation) -> Cameras:

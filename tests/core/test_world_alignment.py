@@ -132,3 +132,56 @@ def test_gravity_none_keeps_the_frame():
     aligned, alignment = wa.align(truth, wa.AlignmentSettings(gravity="none"))
     np.testing.assert_array_equal(aligned.c2w, truth.c2w)
     assert alignment.scale == 1.0
+
+
+def table_on_floor(seed=0) -> Cameras:
+    """Cameras 0.5 m above a 1 × 1 m table top at z = 0.75 on a 3 × 3 m floor at z = 0 (the floor
+    holding more points), with clutter on the table."""
+    rng = np.random.default_rng(seed)
+    c2w = ring_cameras(12, radius=0.9, height=1.25)
+    floor = np.column_stack([rng.uniform(-1.5, 1.5, (700, 2)), np.zeros(700)])
+    floor = floor[np.abs(floor[:, :2]).max(axis=1) > 0.5]  # under the table it is hidden
+    table = np.column_stack([rng.uniform(-0.5, 0.5, (400, 2)), np.full(400, 0.75)])
+    clutter = rng.uniform([-0.2, -0.2, 0.77], [0.2, 0.2, 1.0], (80, 3))
+    points = np.concatenate([floor, table, clutter])
+    K = np.tile(np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]]), (12, 1, 1))
+    names = np.array([f"view_{i:03d}.png" for i in range(12)])
+    return Cameras(names, K, c2w, 320, 240, points, np.zeros((len(points), 3), np.uint8))
+
+
+def test_a_table_on_a_floor_lists_both_planes_and_the_table_can_be_chosen():
+    rng = np.random.default_rng(4)
+    truth = table_on_floor()
+    sfm_frame = moved(truth, 2.7, random_rotation(rng), np.array([0.3, -1.0, 2.0]))
+    largest = wa.find_alignment(sfm_frame, wa.AlignmentSettings(camera_height=1.25))
+    assert [round(p["height"], 2) for p in largest.planes] == [0.75, 0.0]  # highest first
+    assert [p["chosen"] for p in largest.planes] == [False, True]  # the floor holds more points
+    assert largest.scale * 2.7 == pytest.approx(1.0, rel=0.01)
+    table, floor = largest.planes
+    assert table["share"] == pytest.approx(400 / len(truth.points), abs=0.02)
+    assert floor["extent"][0] == pytest.approx(2.7, rel=0.1) and table["extent"][0] == pytest.approx(
+        0.9, rel=0.1
+    )
+    aligned, highest = wa.align(sfm_frame, wa.AlignmentSettings(support_plane="highest", camera_height=0.5))
+    assert [p["chosen"] for p in highest.planes] == [True, False]
+    assert [round(p["height"], 3) for p in highest.planes] == [0.0, -0.75]
+    assert highest.scale * 2.7 == pytest.approx(1.0, rel=0.01)  # camera height from the table
+    np.testing.assert_allclose(aligned.centres[:, 2], 0.5, atol=0.005)
+    lowest = wa.find_alignment(sfm_frame, wa.AlignmentSettings(support_plane="lowest", camera_height=1.25))
+    assert [p["chosen"] for p in lowest.planes] == [False, True]
+
+
+def test_capture_poses_prints_the_planes_it_found(tmp_path):
+    from click.testing import CliRunner
+
+    from fignetctl.cli import cli
+    from fignetctl.core.cameras import read_cameras, write_cameras
+
+    rng = np.random.default_rng(5)
+    write_cameras(tmp_path / "sfm.npz", moved(table_on_floor(), 0.4, random_rotation(rng), np.zeros(3)))
+    args = ["capture-poses", "--import-cameras", str(tmp_path / "sfm.npz"), "--support-plane", "highest"]
+    result = CliRunner().invoke(cli, [*args, "--camera-height", "0.5", "-o", str(tmp_path / "c.npz")])
+    assert result.exit_code == 0, result.output
+    assert "2 horizontal planes" in result.stderr and "-> z = +0.000 m" in result.stderr
+    assert "z = -0.750 m" in result.stderr
+    np.testing.assert_allclose(read_cameras(tmp_path / "c.npz").centres[:, 2], 0.5, atol=0.005)

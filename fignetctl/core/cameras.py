@@ -241,6 +241,7 @@ def import_transforms_json(path, image_dir=None) -> Cameras:
             if matrix.shape != (4, 4):
                 raise ValueError(f"transform_matrix has shape {matrix.shape}")
             intrinsics = {**document, **frame}
+            _refuse_distortion(intrinsics, where)
             width, height = _frame_size(intrinsics, file)
             K = _frame_K(intrinsics, width, height)
         except (KeyError, TypeError, ValueError) as error:
@@ -262,6 +263,27 @@ def import_transforms_json(path, image_dir=None) -> Cameras:
     c2ws[:, :3, :3] = u @ vt
     width, height = sizes[0]
     return validate(Cameras(np.array(names), np.array(Ks), c2ws, width, height), str(path))
+
+
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+
+
+def _refuse_distortion(intrinsics: dict, where: str) -> None:
+    """A FormatError for a frame whose lens distortion is not zero: cameras.npz is pinhole, and
+    keeping the poses while dropping k1... would bend every ray by the distortion."""
+    nonzero = {key: intrinsics[key] for key in DISTORTION_KEYS if float(intrinsics.get(key) or 0.0) != 0.0}
+    if nonzero or str(intrinsics.get("camera_model", "OPENCV")).upper() not in (
+        "OPENCV",
+        "PINHOLE",
+        "SIMPLE_PINHOLE",
+    ):
+        shown = ", ".join(f"{key}={value}" for key, value in nonzero.items()) or intrinsics.get(
+            "camera_model"
+        )
+        raise FormatError(
+            f"{where}: the images are distorted ({shown}) and cameras.npz is pinhole; undistort them first "
+            "(e.g. colmap image_undistorter, or nerfstudio's ns-process-data) and import the undistorted ones"
+        )
 
 
 def _resolve_frame_file(base: Path, file_path: str) -> Path:

@@ -262,17 +262,16 @@ def reconstruction_to_cameras(reconstruction, order: list[str] | None = None) ->
 
 
 def _pinhole_K(camera) -> np.ndarray:
+    """K of a camera; a FormatError for one with lens distortion (cameras.npz is pinhole)."""
     if camera.model_name not in PINHOLE_MODELS:
         extra = (
             np.asarray(camera.params)[list(camera.extra_params_idxs())] if camera.extra_params_idxs() else []
         )
         if np.any(np.abs(extra) > 1e-6):
-            log.warning(
-                "camera %d is %s with distortion %s; it is kept as a pinhole camera, so undistort the "
-                "images first (colmap image_undistorter) for exact poses",
-                camera.camera_id,
-                camera.model_name,
-                np.round(extra, 4).tolist(),
+            raise FormatError(
+                f"camera {camera.camera_id} is {camera.model_name} with distortion "
+                f"{np.round(extra, 4).tolist()} and cameras.npz is pinhole; undistort the images first "
+                "(colmap image_undistorter writes them with a PINHOLE model) and import that model"
             )
     return np.asarray(camera.calibration_matrix(), np.float64)
 

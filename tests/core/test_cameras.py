@@ -68,6 +68,33 @@ def test_nerf_synthetic_camera_angle(tmp_path):
 
 
 @pytest.mark.parametrize(
+    "lens, refused",
+    [
+        ({"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "camera_model": "OPENCV"}, False),  # zeros: pinhole
+        ({"k1": -0.12}, True),
+        ({"k1": 0.0, "p2": 0.001}, True),
+        ({"camera_model": "OPENCV_FISHEYE"}, True),
+    ],
+)
+def test_a_distorted_transforms_json_is_refused_never_read_as_pinhole(tmp_path, lens, refused):
+    document = {
+        "fl_x": 100.0,
+        "cx": 50.0,
+        "cy": 40.0,
+        "w": 100,
+        "h": 80,
+        **lens,
+        "frames": [{"file_path": "a.png", "transform_matrix": np.eye(4).tolist()}],
+    }
+    (tmp_path / "transforms.json").write_text(json.dumps(document))
+    if refused:
+        with pytest.raises(FormatError, match="distorted .* undistort them first"):
+            import_transforms_json(tmp_path / "transforms.json")
+    else:
+        assert import_transforms_json(tmp_path / "transforms.json").K[0, 0, 0] == 100.0
+
+
+@pytest.mark.parametrize(
     "damage, message",
     [
         (lambda a: a.update(format=np.array("other")), "'format'"),

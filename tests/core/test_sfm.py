@@ -186,3 +186,12 @@ def test_staged_folder_replaces_only_on_commit_and_only_what_it_owns(tmp_path):
         StagedDirectory(target, ("frame_*.png",))
     assert sorted(p.name for p in target.iterdir()) == ["frame_2.png", "notes.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["images"]
+
+
+def test_a_colmap_camera_with_distortion_is_refused_and_one_without_is_pinhole():
+    pycolmap = pytest.importorskip("pycolmap")
+    radial = pycolmap.Camera(model="SIMPLE_RADIAL", width=64, height=48, params=[50.0, 32.0, 24.0, -0.08])
+    with pytest.raises(FormatError, match="SIMPLE_RADIAL with distortion .* undistort the images first"):
+        sfm._pinhole_K(radial)
+    flat = pycolmap.Camera(model="SIMPLE_RADIAL", width=64, height=48, params=[50.0, 32.0, 24.0, 0.0])
+    np.testing.assert_allclose(sfm._pinhole_K(flat), [[50, 0, 32], [0, 50, 24], [0, 0, 1]])

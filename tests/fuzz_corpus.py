@@ -71,6 +71,7 @@ OPTION_COMMANDS = [
     "extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --threshold {value} --device cpu -o {out}",
     "extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --resolution {value} --device cpu -o {out}",
     "extract-mesh {nerf} --cameras {cameras} --box {value} --device cpu -o {out}",
+    "extract-mesh {nerf} --cameras {cameras} --prompt {value}:10,10 --prompt 1:5,5 --device cpu -o {out}",
     "extract-mesh {nerf} --cameras {cameras} --box {value},-0.15,-0.6,0.3,0.15,-0.2 --device cpu -o {out}",
     "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera 0 --fps {value} --device cpu -o {out}.mp4",
     "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera {value} --device cpu -o {out}.mp4",
@@ -84,7 +85,7 @@ OPTION_COMMANDS = [
     "show {trajectory} --trajectory {value}",
     "render-nerf {nerf} {cameras} --views {value} -o {out}",
 ]
-BAD_VALUES = ["nan", "inf", "-inf", "-1", "0", "1e308", "abc", "", "1e-320", "18446744073709551616"]
+BAD_VALUES = ["nan", "inf", "-inf", "-1", "0", "1e308", "abc", "", "1e-320", "18446744073709551616", "²"]
 
 
 @dataclasses.dataclass

@@ -132,6 +132,9 @@ def fit_nerf(
     click.echo(str(path))
 
 
+MAX_RENDER_SIDE = 4096  # pixels: as render-views' largest image
+
+
 @click.command("render-nerf")
 @click.argument("nerf", type=click.Path(dir_okay=False))
 @click.argument("cameras", type=click.Path(dir_okay=False))
@@ -169,6 +172,12 @@ def render_nerf(nerf, cameras, output, views, scale, device, overwrite):
 
     out = options.output_path(output, overwrite)
     camera_set = read_cameras(cameras)
+    if scale is not None and max(camera_set.width, camera_set.height) * scale > MAX_RENDER_SIDE:
+        raise click.BadParameter(
+            f"{scale:g} x {camera_set.width}x{camera_set.height} is over {MAX_RENDER_SIDE} pixels on a side; "
+            "lower it",
+            param_hint="--scale",
+        )
     model = load_nerf(nerf, device=options.resolve_device(device))
     indices = _parse_views(views, len(camera_set), model)
     render_views_to_folder(model, camera_set, indices, out, scale)

@@ -177,7 +177,7 @@ def _read_depth(path, cameras):
 def view_index(text, cameras) -> int:
     """A view given as an image name (or file name) or a 0-based index."""
     text = text.strip()
-    if text.isdigit():
+    if text.isdecimal() and text.isascii():  # "²" is a digit to isdigit() but not to int()
         index = int(text)
         if index >= len(cameras):
             raise FignetError(f"view index {index} is out of range (the cameras have {len(cameras)} views)")

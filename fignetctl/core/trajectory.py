@@ -380,9 +380,19 @@ def _plain(value):
     return value
 
 
+# Bounds on the physical values a file may hold: beyond them a simulation over- or underflows
+# (a frame rate of 1e300, a mass of 1e30) long before it could mean anything.
+DT_RANGE = (1e-6, 100.0)  # seconds between frames
+MAX_SCALE = 1e4
+MAX_MASS = 1e9  # kg
+MAX_MATERIAL = 1e3  # friction, restitution
+
+
 def _validate(data: TrajectoryFile, where: str) -> None:
-    if not (np.isfinite(data.dt) and data.dt > 0):
-        raise FormatError(f"{where}: 'dt' must be a positive number of seconds, got {data.dt}")
+    if not (np.isfinite(data.dt) and DT_RANGE[0] <= data.dt <= DT_RANGE[1]):
+        raise FormatError(
+            f"{where}: 'dt' must be between {DT_RANGE[0]:g} and {DT_RANGE[1]:g} seconds, got {data.dt}"
+        )
     gravity = np.asarray(data.gravity)
     if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
         raise FormatError(f"{where}: 'gravity' must be 3 finite numbers, got {gravity.tolist()}")
@@ -473,8 +483,9 @@ def _validate_objects(t: Trajectory, meshes: dict, objects: int, where: str) -> 
             raise FormatError(f"{where}: field {field!r} must hold finite numbers")
         if kind == "b" and value.dtype.kind not in "biu":
             raise FormatError(f"{where}: field {field!r} must be boolean, got {value.dtype}")
-    if np.any(np.asarray(t.scales) <= 0):
-        raise FormatError(f"{where}: field 'scales' must be positive")
-    for field in ("mass", "friction", "restitution"):
-        if np.any(np.asarray(getattr(t, field)) < 0):
-            raise FormatError(f"{where}: field {field!r} must not be negative")
+    if np.any(np.asarray(t.scales) <= 0) or np.any(np.asarray(t.scales) > MAX_SCALE):
+        raise FormatError(f"{where}: field 'scales' must be positive and at most {MAX_SCALE:g}")
+    for field, largest in (("mass", MAX_MASS), ("friction", MAX_MATERIAL), ("restitution", MAX_MATERIAL)):
+        value = np.asarray(getattr(t, field))
+        if np.any(value < 0) or np.any(value > largest):
+            raise FormatError(f"{where}: field {field!r} must be between 0 and {largest:g}")

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 
 import numpy as np
@@ -347,3 +348,30 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
     assert load_model(str(again)).trained_properties == ranges
     with pytest.raises(FormatError, match="is not the file"):
         export_checkpoint(model, tmp_path / "other.pt", trained_on=tmp_path / "slippery.h5")
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: box_drop_file(frames=2), "has 2 frames; training needs 3 or more"),
+        (
+            lambda d: dataclasses.replace(
+                d,
+                trajectories={
+                    "00000": dataclasses.replace(
+                        d.trajectories["00000"], static=np.array([True, True]), mass=np.zeros(2, np.float32)
+                    )
+                },
+            ),
+            "no trajectory has a dynamic object",
+        ),
+    ],
+    ids=["two frames", "nothing dynamic"],
+)
+def test_data_with_nothing_to_learn_is_one_error_line(tmp_path, change, message):
+    data = write_trajectories(tmp_path / "d.h5", change(box_drop_file(frames=5)))
+    result = CliRunner().invoke(
+        cli, ["train", str(data), "--size", "tiny", "--steps", "2", "-o", str(tmp_path / "m.pt")]
+    )
+    assert result.exit_code == 1 and message in result.output and "Traceback" not in result.output
+    assert not (tmp_path / "m.pt").exists()

@@ -113,7 +113,29 @@ def test_failed_write_keeps_previous_output(tmp_path, box_drop):
     path = write_trajectories(tmp_path / "t.h5", box_drop)
     before = path.read_bytes()
     broken = dataclasses.replace(box_drop, dt=float("nan"))
-    with pytest.raises(FormatError, match="'dt' must be a positive number"):
+    with pytest.raises(FormatError, match="'dt' must be between"):
         write_trajectories(path, broken)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["t.h5"]
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("dt", 5e-324, "'dt' must be between 1e-06 and 100 seconds"),
+        ("dt", 1e300, "'dt' must be between 1e-06 and 100 seconds"),
+        ("trajectories/00000/mass", 1e30, r"field 'mass' must be between 0 and 1e\+09"),
+        ("trajectories/00000/scales", 1e30, "field 'scales' must be positive and at most 10000"),
+    ],
+)
+def test_values_beyond_physics_are_refused_by_name(tmp_path, box_drop, field, value, message):
+    import h5py
+
+    path = write_trajectories(tmp_path / "t.h5", box_drop)
+    with h5py.File(path, "r+") as f:
+        if field == "dt":
+            f.attrs["dt"] = value
+        else:
+            f[field][...] = value
+    with pytest.raises(FormatError, match=message):
+        read_trajectories(path)

@@ -329,6 +329,19 @@ def _dynamic_rows(scene_graphs) -> torch.Tensor:
     return torch.cat(rows)
 
 
+def check_trainable(data, where) -> None:
+    """A FignetError for data that holds nothing to learn from: a training example needs frames
+    t−1, t and t+1 and an object that moves."""
+    short = [key for key, t in data.trajectories.items() if t.num_frames < 3]
+    if short:
+        raise FignetError(
+            f"{where}: trajectory {short[0]!r} has {data.trajectories[short[0]].num_frames} frames"
+            f"{f' ({len(short)} such)' if len(short) > 1 else ''}; training needs 3 or more (t-1, t, t+1) in each"
+        )
+    if not any(not np.all(t.static) for t in data.trajectories.values()):
+        raise FignetError(f"{where}: no trajectory has a dynamic object; there is no motion to learn")
+
+
 def make_trainer(
     dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0
 ):
@@ -336,6 +349,7 @@ def make_trainer(
     or a new run that starts from the weights and normalizer statistics of `init_from`."""
     dataset_path = Path(dataset_path)
     data = read_trajectories(dataset_path)  # a clear error for a missing or damaged file, before hashing it
+    check_trainable(data, dataset_path)
     data_hash = file_sha256(dataset_path)
     if resume_from is not None:
         simulator, state = load_checkpoint(resume_from, with_training_state=True)

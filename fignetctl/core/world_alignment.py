@@ -32,6 +32,7 @@ DEFAULT_CAMERA_HEIGHT = 0.5  # metres: a hand-held camera looking down at a tabl
 MAX_PLANE_TILT_DEG = 45.0  # planes steeper than this from the cameras' up are walls
 MIN_PLANE_INLIER_FRACTION = 0.15
 MIN_CANDIDATE_FRACTION = 0.05  # a parallel plane holding this share of the points is a candidate
+MIN_PLANE_FILL = 0.4  # a candidate's points must cover this share of their box (_area_filled)
 SUPPORT_CHOICES = ("largest", "highest", "lowest")
 
 
@@ -315,10 +316,20 @@ def parallel_planes(cameras: Cameras, up, on_plane, settings: AlignmentSettings)
             break
         offset = float(np.median(sorted_heights[start : start + counts[start]]))
         members = left & (np.abs(heights - offset) < band)
-        low, high = np.percentile(points[members] @ across, [5, 95], axis=0)
-        planes.append({"offset": offset, "count": int(members.sum()), "extent": (high - low).tolist()})
+        flat = points[members] @ across
+        low, high = np.percentile(flat, [5, 95], axis=0)
+        if _area_filled(flat, low, high) >= MIN_PLANE_FILL:  # not a ring of wall points at one height
+            planes.append({"offset": offset, "count": int(members.sum()), "extent": (high - low).tolist()})
         left &= ~(np.abs(heights - offset) < 2 * band)
     return sorted(planes, key=lambda plane: -plane["offset"])
+
+
+def _area_filled(flat, low, high, cells: int = 16) -> float:
+    """Share of a cells × cells grid over [low, high] that holds a point: near 1 for a surface,
+    small for the ring that walls or a container's rim leave at one height."""
+    inside = np.all((flat >= low) & (flat <= high), axis=1)
+    index = np.minimum(((flat[inside] - low) / np.maximum(high - low, 1e-12) * cells).astype(int), cells - 1)
+    return len({tuple(i) for i in index}) / cells**2
 
 
 def choose_plane(candidates: list, choice: str) -> dict:

@@ -87,9 +87,9 @@ def _trajectory_key(data, trajectory_id):
         return ids[0]
     if trajectory_id in data.trajectories:
         return trajectory_id
-    if trajectory_id.isdigit():
+    if trajectory_id.isascii() and trajectory_id.isdecimal():  # "²" is a digit to isdigit(), not to int()
         for key in ids:
-            if key.isdigit() and int(key) == int(trajectory_id):
+            if key.isascii() and key.isdecimal() and int(key) == int(trajectory_id):
                 return key
     known = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
     raise click.BadParameter(

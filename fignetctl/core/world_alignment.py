@@ -217,6 +217,14 @@ def support_plane(cameras: Cameras, settings: AlignmentSettings):
     return normal, centroid, int(mask.sum())
 
 
+def densest_band(heights, width: float) -> tuple[float, int]:
+    """(median height, count) of the window [h, h + width] holding the most of `heights` (n,)."""
+    ordered = np.sort(heights)
+    counts = np.searchsorted(ordered, ordered + width) - np.arange(len(ordered))
+    start = int(np.argmax(counts))
+    return float(np.median(ordered[start : start + counts[start]])), int(counts[start])
+
+
 def support_height_along(up, cameras: Cameras, settings: AlignmentSettings) -> np.ndarray:
     """A point on the support plane for a given `up`: the densest band of point heights below
     the cameras (or the lowest camera when there are no points)."""
@@ -225,10 +233,7 @@ def support_height_along(up, cameras: Cameras, settings: AlignmentSettings) -> n
     if len(heights) < 10:
         return looked_at_point(cameras)
     band = settings.plane_threshold * scene_size(cameras.points, cameras)
-    sorted_heights = np.sort(heights)
-    counts = np.searchsorted(sorted_heights, sorted_heights + band) - np.arange(len(sorted_heights))
-    start = int(np.argmax(counts))
-    height = float(np.median(sorted_heights[start : start + counts[start]]))
+    height, _ = densest_band(heights, band)
     inliers = np.abs(cameras.points @ up - height) < band
     centroid = cameras.points[inliers].mean(axis=0)
     return centroid + (height - centroid @ up) * up
@@ -309,12 +314,9 @@ def parallel_planes(cameras: Cameras, up, on_plane, settings: AlignmentSettings)
     across = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]  # two axes in the plane
     planes, left = [], below.copy()
     while left.sum() >= max(3, MIN_CANDIDATE_FRACTION * len(points)):
-        sorted_heights = np.sort(heights[left])
-        counts = np.searchsorted(sorted_heights, sorted_heights + 2 * band) - np.arange(len(sorted_heights))
-        start = int(np.argmax(counts))
-        if counts[start] < MIN_CANDIDATE_FRACTION * len(points):
+        offset, count = densest_band(heights[left], 2 * band)
+        if count < MIN_CANDIDATE_FRACTION * len(points):
             break
-        offset = float(np.median(sorted_heights[start : start + counts[start]]))
         members = left & (np.abs(heights - offset) < band)
         flat = points[members] @ across
         low, high = np.percentile(flat, [5, 95], axis=0)

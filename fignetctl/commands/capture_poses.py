@@ -151,7 +151,6 @@ def capture_poses(
     """
     from fignetctl.core import sfm, world_alignment
     from fignetctl.core.cameras import export_transforms_json, write_cameras
-    from fignetctl.core.provenance import read_provenance
 
     sources = {
         "--images": images_dir,
@@ -195,11 +194,8 @@ def capture_poses(
         else:
             cameras = sfm.run_sfm(images_dir, settings=settings)
         aligned, alignment = world_alignment.align(cameras, alignment_settings)
-        write_cameras(
-            output,
-            aligned,
-            _provenance(images_dir, video_path, import_transforms, import_colmap, import_cameras),
-        )
+        provenance = _provenance(images_dir, video_path, import_transforms, import_colmap, import_cameras)
+        write_cameras(output, aligned, provenance)
         if staged is not None:
             staged.commit()
     finally:
@@ -216,7 +212,7 @@ def capture_poses(
         "scale_from": alignment.scale_source,
         "support_planes": list(alignment.planes),
     }
-    options.write_summary(json_path, summary, read_provenance(output))
+    options.write_summary(json_path, summary, provenance)
     if export_transforms is not None:
         prefix = "" if images_dir is None else _relative_prefix(images_dir, export_transforms.parent)
         export_transforms_json(export_transforms, aligned, image_prefix=prefix)

@@ -167,7 +167,6 @@ def extract_mesh(
     """
     from fignetctl.core.mesh_extraction import ExtractionSettings
     from fignetctl.core.object_extraction import ExtractionInputs, run_extraction
-    from fignetctl.core.provenance import read_provenance
     from fignetctl.core.segmentation import SegmentationSettings
 
     given = [bool(prompt_texts or prompts_path), bool(masks_dir), box is not None]
@@ -212,6 +211,6 @@ def extract_mesh(
         f"{summary['environment_faces']} faces; {summary['seconds']:.1f} s",
         err=True,
     )
-    provenance = read_provenance(out / "volume.npz")
+    provenance = summary.pop("provenance")
     options.write_summary(json_path, {"output": str(out), **summary}, provenance)
     click.echo(str(out))

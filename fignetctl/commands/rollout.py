@@ -83,7 +83,7 @@ def rollout(
     """
     from fignetctl.core.model.rollout import RolloutError
     from fignetctl.core.model.runs import load_model, rollout_file
-    from fignetctl.core.provenance import read_provenance
+    from fignetctl.core.provenance import from_strings
 
     path = options.output_path(output, overwrite)
     json_path = options.json_path_checked(json_path, overwrite)
@@ -121,7 +121,7 @@ def rollout(
         "final_positions": trajectory.positions[-1][~trajectory.static],
         "error": None if error is None else str(error),
     }
-    options.write_summary(json_path, summary, read_provenance(path))
+    options.write_summary(json_path, summary, from_strings(result.attrs))
     if error is not None:
         raise click.ClickException(f"{error} (written to {path})")
     click.echo(str(path))

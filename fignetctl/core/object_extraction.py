@@ -46,7 +46,8 @@ class ExtractionInputs:
 def run_extraction(
     inputs: ExtractionInputs, out_dir, settings: ExtractionSettings, segmentation=None, device="cpu"
 ) -> dict:
-    """Extract and write; returns a summary (faces, sizes, seconds, per-view mask pixels)."""
+    """Extract and write; returns a summary (faces, sizes, seconds, per-view mask pixels, the
+    outline checks, and the provenance stamp volume.npz carries)."""
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.provenance import stamp
@@ -67,11 +68,8 @@ def run_extraction(
         name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
     }
     check_mask_agreement(agreement, settings)
-    extra = {
-        "inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v},
-        "mask_iou": agreement,
-        "watertight": bool(extraction.object_mesh.is_watertight),
-    }
+    checks = {"mask_iou": agreement, "watertight": bool(extraction.object_mesh.is_watertight)}
+    extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
     provenance = stamp(
         nerf=inputs.nerf,
         cameras=inputs.cameras,
@@ -91,8 +89,8 @@ def run_extraction(
         "origin": extraction.origin.tolist(),
         "support_z": extraction.support_z,
         "masks": {view.name: int(view.mask.sum()) for view in views},
-        "mask_iou": agreement,
-        "watertight": bool(extraction.object_mesh.is_watertight),
+        **checks,
+        "provenance": provenance,
         "seconds": time.perf_counter() - started,
     }
 

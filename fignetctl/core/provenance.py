@@ -87,8 +87,14 @@ def read_provenance(path) -> dict:
     else:
         document = json.loads(path.read_text())
         found = {key: document[key] for key in (VERSION_KEY, INPUTS_KEY) if key in document}
-    inputs = found.get(INPUTS_KEY)
+    return from_strings(found)
+
+
+def from_strings(stored) -> dict:
+    """The stamp from what `as_strings` stored (a dict, HDF5 attributes, ...); a missing key
+    reads as None."""
+    inputs = stored.get(INPUTS_KEY)
     if isinstance(inputs, (str, bytes)):
         inputs = json.loads(inputs)
-    version = found.get(VERSION_KEY)
+    version = stored.get(VERSION_KEY)
     return {VERSION_KEY: None if version is None else str(version), INPUTS_KEY: inputs}

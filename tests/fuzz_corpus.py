@@ -27,6 +27,7 @@ import zlib
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 OUTCOMES = ("clean", "success", "traceback", "messy", "left_behind", "hang")
 BOX = "-0.3,-0.15,-0.6,0.3,0.15,-0.2"
@@ -113,25 +114,8 @@ def base_files(folder: Path) -> dict:
     folder.mkdir(parents=True, exist_ok=True)
     save_nerf(folder / "nerf.pt", solid_field(resolution=17))
     write_volume(folder / "volume.npz", lower=BOX_LOWER - 0.05, upper=BOX_UPPER + 0.05, origin=REST)
-    half = 0.5 * (BOX_UPPER - BOX_LOWER)
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
-    faces = np.array(
-        [
-            [0, 1, 3],
-            [0, 3, 2],
-            [4, 6, 7],
-            [4, 7, 5],
-            [0, 4, 5],
-            [0, 5, 1],
-            [2, 3, 7],
-            [2, 7, 6],
-            [0, 2, 6],
-            [0, 6, 4],
-            [1, 5, 7],
-            [1, 7, 3],
-        ]
-    )
-    write_obj(folder / "object.obj", corners, faces)
+    box = trimesh.creation.box(BOX_UPPER - BOX_LOWER)  # about its centre, as extract-mesh writes it
+    write_obj(folder / "object.obj", box.vertices, box.faces)
     write_obj(
         folder / "environment.obj",
         [[-1, -1, -0.8], [1, -1, -0.8], [1, 1, -0.8], [-1, 1, -0.8]],
@@ -179,11 +163,9 @@ def write_kubric_scene(folder: Path) -> None:
 
     from fignetctl.core.obj import write_obj
 
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.5
-    faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1]]
-    faces += [[2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
     (folder / "assets").mkdir(exist_ok=True)
-    write_obj(folder / "assets" / "cube.obj", corners, faces)
+    mesh = trimesh.creation.box()
+    write_obj(folder / "assets" / "cube.obj", mesh.vertices, mesh.faces)
     cube = {
         "asset_id": "cube",
         "positions": [[0, 0, 1.0], [0, 0, 0.9]],

@@ -62,6 +62,9 @@ def main() -> None:
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
     parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--report-at", default="", help="comma-separated steps at which FVU is also measured (one schedule)"
+    )
     parser.add_argument("-o", "--output", default=None)
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -71,6 +74,7 @@ def main() -> None:
         "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False
     )
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
+    report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})
     started = time.perf_counter()
     trainer = overfit(
         config,
@@ -81,14 +85,23 @@ def main() -> None:
         args.loss,
         args.precision,
         args.seed,
+        until_step=report_at[0] if report_at else None,
     )
+    examples = one_step_examples(trainer.simulator, scenes)
+    curve = []
+    for step in report_at + [args.steps]:
+        trainer.run(until_step=step)
+        fvu = fraction_unexplained(trainer.simulator.eval(), examples)
+        trainer.simulator.train()
+        curve.append({"step": step, "seconds": time.perf_counter() - started, "fraction_unexplained": fvu["all"]})
+        print(json.dumps(curve[-1]), flush=True)
     seconds = time.perf_counter() - started
     simulator = trainer.simulator.eval()
-    fvu = fraction_unexplained(simulator, one_step_examples(simulator, scenes))
     result = {
         "args": vars(args),
         "train_seconds": seconds,
         "fraction_unexplained": fvu,
+        "curve": curve,
         "rollout": rollout_errors(simulator, scenes),
         "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]])),
     }

@@ -210,3 +210,63 @@ def _log_bar():
             super().set_postfix(ordered_dict, refresh=False, **kwargs)
 
     return LogBar
+
+
+def settings_options(settings_class, **overrides):
+    """A decorator adding one option per field of a stage's Settings dataclass (see
+    fignetctl.stages): `--field-name`, its default, help and bounds from the field's `setting`.
+    bool fields become `--x/--no-x`, int and float fields bounded ranges (floats finite),
+    fields with choices a click.Choice. `overrides` maps a field name to a click.option
+    decorator of the command's own (a tuple type, a callback)."""
+    import dataclasses
+
+    from fignetctl.stages import field_types
+
+    types = field_types(settings_class)
+    decorators = []
+    for field in dataclasses.fields(settings_class):
+        if field.name in overrides:
+            decorators.append(overrides[field.name])
+        elif "help" in field.metadata:
+            decorators.append(_settings_option(field, types[field.name]))
+
+    def decorate(function):
+        for decorator in reversed(decorators):
+            function = decorator(function)
+        return function
+
+    return decorate
+
+
+def _settings_option(field, kind):
+    meta, flag = field.metadata, "--" + field.name.replace("_", "-")
+    low, high = meta["low"], meta["high"]
+    if meta["choices"] is not None:
+        param_type = click.Choice([str(choice) for choice in meta["choices"]])
+    elif kind is bool:
+        flag = f"{flag}/--no-{field.name.replace('_', '-')}"
+        param_type = None
+    elif kind is int:
+        param_type = click.IntRange(low, high, min_open=meta["low_open"])
+    elif kind is float:
+        param_type = FiniteFloatRange(low, high, min_open=meta["low_open"])
+    else:
+        param_type = kind
+    return click.option(
+        flag,
+        field.name,
+        type=param_type,
+        default=field.default,
+        show_default=field.default is not None,
+        metavar=meta["metavar"],
+        help=meta["help"],
+    )
+
+
+def settings_from(settings_class, values: dict):
+    """The Settings of a command from its click arguments: the fields are taken out of
+    `values`, which keeps the rest (paths, --overwrite, --json)."""
+    import dataclasses
+
+    names = [field.name for field in dataclasses.fields(settings_class)]
+    return settings_class(**{name: values.pop(name) for name in names if name in values})

@@ -77,8 +77,10 @@ def overfit(
     loss="mse",
     precision="fp32",
     seed=0,
+    until_step=None,
 ):
-    """A Trainer that has fitted `scenes` for `steps` without noise (the learnability test)."""
+    """A Trainer that has fitted `scenes` without noise (the learnability test) for `steps`, or
+    for `until_step` of a `steps`-long schedule (continue it with `trainer.run(until_step=...)`)."""
     from fignetctl.core.model.simulator import LearnedSimulator
     from fignetctl.core.model.training import Trainer, TrainingConfig
 
@@ -99,5 +101,5 @@ def overfit(
         torch.manual_seed(seed)
         simulator = LearnedSimulator(dataclasses.replace(simulator_config, dt=scenes[0].dt))
     trainer = Trainer(scenes, simulator, config)
-    trainer.run()
+    trainer.run(until_step=until_step)
     return trainer

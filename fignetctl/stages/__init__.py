@@ -1,0 +1,69 @@
+"""The stages: one module per command, named as the command (`capture_poses` for
+`capture-poses`), between the click shells in `fignetctl.commands` and the library in
+`fignetctl.core`.
+
+Each stage exposes
+
+    Settings   a frozen dataclass of the command's settings (every option that is not a path),
+               each field declared with `setting(...)`: its default, one line of help and its
+               bounds. The command's options are generated from it
+               (`fignetctl.commands.options.settings_options`), so a default or a bound is
+               written once and holds for the command line and for Python callers alike.
+    run(...)   takes the input and output paths and a Settings, writes its outputs atomically
+               with their provenance stamp, and returns a summary dict (what `--json` writes).
+
+Stages may name the command's flags in their messages (they are the command's library side);
+`fignetctl.core` does not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+
+from fignetctl.errors import FignetError
+
+
+def setting(default, help: str, *, low=None, high=None, low_open=False, choices=None, metavar=None):
+    """A Settings field: `default`, one line of `help`, and the bounds the value must lie in
+    (`low`, `high`, inclusive unless `low_open`) or the `choices` it must be one of."""
+    bounds = {"help": help, "low": low, "high": high, "low_open": low_open, "choices": choices}
+    return dataclasses.field(default=default, metadata={**bounds, "metavar": metavar})
+
+
+def check(settings) -> None:
+    """Refuse a Settings whose values lie outside their declared bounds (Python callers get the
+    command line's checks): NaN and ±inf are refused for every number."""
+    for field in dataclasses.fields(settings):
+        value, meta = getattr(settings, field.name), field.metadata
+        if value is None or "help" not in meta:
+            continue
+        if meta["choices"] is not None and value not in meta["choices"]:
+            raise FignetError(
+                f"{field.name} = {value!r}: choose one of {', '.join(map(str, meta['choices']))}"
+            )
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            low, high = meta["low"], meta["high"]
+            if (
+                not math.isfinite(value)
+                or (low is not None and (value <= low if meta["low_open"] else value < low))
+                or (high is not None and value > high)
+            ):
+                raise FignetError(f"{field.name} = {value!r} is outside {_interval(meta)}")
+
+
+def _interval(meta) -> str:
+    low = "-inf" if meta["low"] is None else f"{meta['low']:g}"
+    high = "inf" if meta["high"] is None else f"{meta['high']:g}"
+    return f"{'(' if meta['low_open'] or meta['low'] is None else '['}{low}, {high}]"
+
+
+def field_types(settings_class) -> dict:
+    """Field name -> its annotated type, with `X | None` reduced to X."""
+    hints = typing.get_type_hints(settings_class)
+    types = {}
+    for name, hint in hints.items():
+        arguments = [a for a in typing.get_args(hint) if a is not type(None)]
+        types[name] = arguments[0] if type(None) in typing.get_args(hint) and len(arguments) == 1 else hint
+    return types

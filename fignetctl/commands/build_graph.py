@@ -6,6 +6,7 @@ import click
 
 from fignetctl.commands import options
 from fignetctl.core.scene_building import ACTIVE, PASSIVE
+from fignetctl.stages import write_summary
 
 
 @click.command("build-graph")
@@ -176,7 +177,7 @@ def build_graph(
         "start": positions[1],
         "history": positions[0],
     }
-    options.write_summary(json_path, summary, provenance)
+    write_summary(json_path, summary, provenance)
     click.echo(
         f"scene: {len(obj.faces)} + {len(environment.faces)} faces, start {positions[1].round(4).tolist()}",
         err=True,

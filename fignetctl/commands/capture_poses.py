@@ -5,6 +5,7 @@ from pathlib import Path
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import write_summary
 
 
 @click.command("capture-poses")
@@ -212,7 +213,7 @@ def capture_poses(
         "scale_from": alignment.scale_source,
         "support_planes": list(alignment.planes),
     }
-    options.write_summary(json_path, summary, provenance)
+    write_summary(json_path, summary, provenance)
     if export_transforms is not None:
         prefix = "" if images_dir is None else _relative_prefix(images_dir, export_transforms.parent)
         export_transforms_json(export_transforms, aligned, image_prefix=prefix)

@@ -5,6 +5,7 @@ from pathlib import Path
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import write_summary
 
 
 @click.command("extract-mesh")
@@ -212,5 +213,5 @@ def extract_mesh(
         err=True,
     )
     provenance = summary.pop("provenance")
-    options.write_summary(json_path, {"output": str(out), **summary}, provenance)
+    write_summary(json_path, {"output": str(out), **summary}, provenance)
     click.echo(str(out))

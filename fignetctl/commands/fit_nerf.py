@@ -3,6 +3,7 @@
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import write_summary
 
 
 @click.command("fit-nerf")
@@ -128,7 +129,7 @@ def fit_nerf(
         from fignetctl.core.nerf.visualize import log_fit_to_rerun
 
         log_fit_to_rerun(rerun_path, trainer, renderings)
-    options.write_summary(json_path, {"output": str(path), **metrics}, trainer.provenance)
+    write_summary(json_path, {"output": str(path), **metrics}, trainer.provenance)
     click.echo(str(path))
 
 

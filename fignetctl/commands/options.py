@@ -53,24 +53,6 @@ def json_path_checked(json_path, overwrite: bool):
     return None if json_path is None else output_path(json_path, overwrite, "--json")
 
 
-def write_summary(json_path, summary: dict, provenance: dict) -> None:
-    """The --json file: `summary` and the output's provenance stamp, written atomically;
-    nothing when no --json was given."""
-    if json_path is None:
-        return
-    import json
-
-    from fignetctl.core.atomic import atomic_path
-
-    with atomic_path(json_path) as tmp:
-        tmp.write_text(json.dumps({**summary, **provenance}, indent=1, default=_plain) + "\n")
-
-
-def _plain(value):
-    """numpy scalars and arrays as json numbers and lists."""
-    return value.tolist() if hasattr(value, "tolist") else str(value)
-
-
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace outputs that already exist.")
 seed_option = click.option(
     "--seed",

@@ -5,6 +5,7 @@ from pathlib import Path
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import write_summary
 
 
 @click.command("rerender")
@@ -192,7 +193,7 @@ def rerender(
         err=True,
     )
     provenance = stamp(nerf=nerf_path, volume=volume_path, rollout=rollout_path, cameras=cameras_path)
-    options.write_summary(json_path, {"output": str(video), "frames_dir": str(frames), **summary}, provenance)
+    write_summary(json_path, {"output": str(video), "frames_dir": str(frames), **summary}, provenance)
     click.echo(str(video))
 
 
@@ -204,8 +205,8 @@ def _cameras(cameras_path, index, orbit, radius, elevation, orbit_frames, fov, w
     """One camera (K, c2w, width, height) per output frame."""
     import numpy as np
 
-    from fignetctl.core.cameras import read_cameras
     from fignetctl.core import pinhole
+    from fignetctl.core.cameras import read_cameras
 
     cameras = read_cameras(cameras_path) if cameras_path else None
     if cameras is not None and index is not None and not -len(cameras) <= index < len(cameras):

@@ -5,6 +5,7 @@ import math
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import write_summary
 
 
 @click.command("rollout")
@@ -121,7 +122,7 @@ def rollout(
         "final_positions": trajectory.positions[-1][~trajectory.static],
         "error": None if error is None else str(error),
     }
-    options.write_summary(json_path, summary, from_strings(result.attrs))
+    write_summary(json_path, summary, from_strings(result.attrs))
     if error is not None:
         raise click.ClickException(f"{error} (written to {path})")
     click.echo(str(path))

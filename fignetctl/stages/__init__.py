@@ -67,3 +67,21 @@ def field_types(settings_class) -> dict:
         arguments = [a for a in typing.get_args(hint) if a is not type(None)]
         types[name] = arguments[0] if type(None) in typing.get_args(hint) and len(arguments) == 1 else hint
     return types
+
+
+def write_summary(json_path, summary: dict, provenance: dict) -> None:
+    """The --json file: `summary` and the output's provenance stamp, written atomically;
+    nothing when `json_path` is None."""
+    if json_path is None:
+        return
+    import json
+
+    from fignetctl.core.atomic import atomic_path
+
+    with atomic_path(json_path) as tmp:
+        tmp.write_text(json.dumps({**summary, **provenance}, indent=1, default=_plain) + "\n")
+
+
+def _plain(value):
+    """numpy scalars and arrays as json numbers and lists."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)

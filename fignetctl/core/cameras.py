@@ -23,6 +23,7 @@ import numpy as np
 
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_npz_document, require_regular_file
+from fignetctl.core.media import read_image
 from fignetctl.core.pinhole import Camera
 from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
@@ -171,7 +172,6 @@ def read_cameras(path) -> Cameras:
 def check_images_match(cameras: Cameras, image_dir, where: str = "cameras") -> list[Path]:
     """The image files of the cameras in `image_dir`, checked to exist and to have the cameras'
     size; a FormatError says which image does not match."""
-    import cv2
 
     image_dir = Path(image_dir)
     files = []
@@ -181,9 +181,7 @@ def check_images_match(cameras: Cameras, image_dir, where: str = "cameras") -> l
             raise FormatError(
                 f"{where}: image {name!r} is not in {image_dir}; are these the images the cameras were made from?"
             )
-        image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise FormatError(f"{file}: not a readable image")
+        image = read_image(file)
         if image.shape[:2] != (cameras.height, cameras.width):
             raise FormatError(
                 f"{file}: is {image.shape[1]}x{image.shape[0]} but the cameras are "
@@ -299,11 +297,10 @@ def _resolve_frame_file(base: Path, file_path: str) -> Path:
 def _frame_size(intrinsics: dict, file: Path) -> tuple[int, int]:
     if "w" in intrinsics and "h" in intrinsics:
         return int(intrinsics["w"]), int(intrinsics["h"])
-    import cv2
-
-    image = cv2.imread(str(file), cv2.IMREAD_UNCHANGED) if file.is_file() else None
-    if image is None:
-        raise ValueError(f"no 'w'/'h' and the image {file} cannot be read for its size")
+    try:
+        image = read_image(file)
+    except FormatError:
+        raise ValueError(f"no 'w'/'h' and the image {file} cannot be read for its size") from None
     return image.shape[1], image.shape[0]
 
 

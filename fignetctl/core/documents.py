@@ -3,12 +3,28 @@ nerf.pt), the container and its `format` / `format_version` checked once for eve
 
 from __future__ import annotations
 
+import tokenize
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from fignetctl.errors import FormatError
+
+NPZ_ERRORS = (
+    OSError,
+    ValueError,
+    EOFError,
+    KeyError,
+    RuntimeError,
+    SyntaxError,
+    zipfile.BadZipFile,
+    zlib.error,
+    tokenize.TokenError,
+)
+"""What numpy raises on a damaged .npz: a broken zip, a truncated member, an unparsable .npy
+header (numpy tokenizes and evaluates the header's text)."""
 
 
 def require_regular_file(path, kind: str = "") -> Path:
@@ -23,18 +39,25 @@ def require_regular_file(path, kind: str = "") -> Path:
     return path
 
 
+def read_npz_arrays(path, name: str) -> dict:
+    """Every array of an .npz (no pickles), or a one-line FormatError naming `path` and what
+    the file should have been (`name`)."""
+    path = require_regular_file(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except NPZ_ERRORS as error:
+        message = " ".join(str(error).split())[:160]
+        raise FormatError(f"{path}: not a readable {name} ({type(error).__name__}: {message})") from None
+
+
 def read_npz_document(path, name: str, fmt: str, version: int, required=()) -> dict:
     """The arrays of an .npz whose `format` is `fmt` and `format_version` is `version`, with
     every field of `required` present; any problem is a one-line FormatError naming `path`.
 
     name : what the file is, for the messages (e.g. 'cameras.npz')
     """
-    path = require_regular_file(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError, RuntimeError) as error:
-        raise FormatError(f"{path}: not a readable {name} ({type(error).__name__}: {error})") from None
+    arrays = read_npz_arrays(path, name)
     found = str(arrays.get("format", ""))
     if found != fmt:
         raise FormatError(f"{path}: 'format' is {found!r}, expected {fmt!r}")

@@ -62,5 +62,8 @@ def _run_child(sending, reader, path, args):
             "error",
             f"{path}: not readable ({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})",
         )
-    sending.send(result)
+    try:
+        sending.send(result)
+    except Exception as error:  # a value that cannot cross the pipe: a reader's bug, said in one line
+        sending.send(("error", f"{path}: not readable (its content cannot be returned: {type(error).__name__})"))
     sending.close()

@@ -1,4 +1,5 @@
-"""Videos: H.264 mp4 files (what browsers, players and rerun open), written through PyAV.
+"""Images read through OpenCV with one-line errors, and videos: H.264 mp4 files (what
+browsers, players and rerun open), written through PyAV.
 
 Frames are (H, W, 3) uint8 RGB. H.264 in yuv420p needs an even width and height: a frame of
 odd size is padded by repeating its last row or column, so the video is at most one pixel
@@ -11,7 +12,32 @@ import fractions
 
 import numpy as np
 
-from fignetctl.errors import FignetError
+from fignetctl.errors import FignetError, FormatError
+
+
+def read_image(path, flags=None, hint: str = "") -> np.ndarray:
+    """An image as OpenCV reads it (`flags`: cv2.IMREAD_*, default IMREAD_UNCHANGED), or a
+    one-line FormatError naming `path` (`hint`: what to check, appended to it) when it is not a
+    regular file, cannot be decoded, or declares more pixels than OpenCV's limit (a
+    'decompression bomb': a small file whose header claims a huge image)."""
+    import cv2
+
+    from fignetctl.core.documents import require_regular_file
+
+    path = require_regular_file(path, "image")
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED if flags is None else flags)
+    except cv2.error as error:
+        too_large = "MAX_IMAGE_PIXELS" in str(error)
+        raise FormatError(
+            f"{path}: "
+            + ("declares more pixels than OpenCV reads; resize it" if too_large else "not a readable image")
+            + hint
+        ) from None
+    if image is None or image.size == 0:
+        raise FormatError(f"{path}: not a readable image{hint}")
+    return image
+
 
 CODEC = "libx264"
 QUALITY_CRF = 18  # x264's constant rate factor: 18 is visually lossless for most content

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.documents import require_regular_file
+from fignetctl.core.documents import read_npz_arrays, require_regular_file
+from fignetctl.core.media import read_image
 from fignetctl.core.mesh_extraction import (
     ExtractionSettings,
     View,
@@ -149,9 +150,7 @@ def _image_dir(inputs, cameras) -> Path:
 def _read_image(path, cameras):
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise FormatError(f"{path}: not a readable image (is --images right?)")
+    image = read_image(path, cv2.IMREAD_COLOR, " (are the images the right ones?)")
     if image.shape[:2] != (cameras.height, cameras.width):
         raise FormatError(
             f"{path}: is {image.shape[1]}x{image.shape[0]} but the cameras are {cameras.width}x{cameras.height}"
@@ -160,11 +159,10 @@ def _read_image(path, cameras):
 
 
 def _read_depth(path, cameras):
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            depth = np.asarray(data["depth"], np.float64)
-    except (OSError, ValueError, KeyError, EOFError) as error:
-        raise FormatError(f"{path}: not a depth.npz with a 'depth' array ({type(error).__name__})") from None
+    arrays = read_npz_arrays(path, "depth.npz")
+    if "depth" not in arrays:
+        raise FormatError(f"{path}: not a depth.npz with a 'depth' array")
+    depth = np.asarray(arrays["depth"], np.float64)
     if depth.shape != (len(cameras), cameras.height, cameras.width):
         raise FormatError(
             f"{path}: depth has shape {depth.shape}, expected {(len(cameras), cameras.height, cameras.width)}"
@@ -248,8 +246,8 @@ def read_user_masks(folder, cameras) -> dict:
         path = folder / (Path(str(name)).stem + ".png")
         if not path.is_file():
             continue
-        mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if mask is None or mask.shape != (cameras.height, cameras.width):
+        mask = read_image(path, cv2.IMREAD_GRAYSCALE)
+        if mask.shape != (cameras.height, cameras.width):
             raise FormatError(f"{path}: not a {cameras.width}x{cameras.height} mask image")
         masks[index] = mask > 0
     if len(masks) < 2:

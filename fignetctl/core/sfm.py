@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.cameras import IMAGE_SUFFIXES, Cameras, validate
+from fignetctl.core.media import read_image
 from fignetctl.errors import FignetError, FormatError
 
 log = logging.getLogger(__name__)
@@ -91,7 +92,6 @@ def list_images(image_dir) -> tuple[list[str], int, int]:
     Raises a one-line FignetError for a missing or empty folder, an unreadable image or
     images of different sizes.
     """
-    import cv2
 
     image_dir = Path(image_dir)
     if not image_dir.is_dir():
@@ -101,9 +101,7 @@ def list_images(image_dir) -> tuple[list[str], int, int]:
         raise FignetError(f"{image_dir}: holds no images ({', '.join(IMAGE_SUFFIXES)})")
     sizes = {}
     for name in names:
-        image = cv2.imread(str(image_dir / name), cv2.IMREAD_UNCHANGED)
-        if image is None or image.size == 0:
-            raise FignetError(f"{image_dir / name}: not a readable image; remove it or replace it")
+        image = read_image(image_dir / name, hint="; remove it or replace it")
         sizes.setdefault((image.shape[1], image.shape[0]), name)
     if len(sizes) > 1:
         (size_a, first_a), (size_b, first_b) = list(sizes.items())[:2]

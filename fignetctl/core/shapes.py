@@ -31,13 +31,13 @@ import json
 import logging
 import os
 import tempfile
-import zipfile
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.documents import NPZ_ERRORS
 from fignetctl.core.obj import read_obj_groups, read_obj_vertices, write_convex_parts_obj
 from fignetctl.errors import FignetError
 
@@ -391,7 +391,7 @@ def cached_asset(recipe: ShapeRecipe, cache: Path) -> ShapeAsset:
     if path.exists():
         try:
             return read_cached_asset(path, recipe.name)
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
+        except NPZ_ERRORS as error:
             logger.warning("rebuilding shape %s: cannot read %s (%s)", recipe.name, path, error)
     try:
         asset = build_asset(recipe)

@@ -267,13 +267,21 @@ def _superblock_length_size(data) -> int:
     return size if size in (2, 4, 8) else 8
 
 
+GLOBAL_HEAP_MIN_SIZE = 4096
+"""HDF5 allocates global heap collections of at least this many bytes (H5HG_MINSIZE)."""
+
+
 def _global_heap_walk_ends(data, start: int, length_size: int) -> bool:
     """Walk the collection at `start` as HDF5's H5HG__cache_heap_deserialize does: True when
-    every step advances and stays inside the collection (or this is no version-1 collection)."""
+    every step advances and stays inside the collection, or the bytes at `start` are no
+    collection header (version 1, three reserved zero bytes, a size from 4096 bytes to the end
+    of the file): a file whose data happens to hold "GCOL" is not refused for it."""
     header = 8 + length_size
-    if start + header > len(data) or data[start + 4] != 1:
+    if start + header > len(data) or data[start + 4 : start + 8] != b"\x01\x00\x00\x00":
         return True
     end = start + int.from_bytes(data[start + 8 : start + header], "little")
+    if not GLOBAL_HEAP_MIN_SIZE <= end - start <= len(data) - start:
+        return True  # not a collection's header: the same bytes inside a dataset or attribute
     object_header = 8 + length_size
     position = start + header
     while position < min(end, len(data)):
@@ -301,7 +309,7 @@ def _read_open_file(f, where: str, trajectory_ids) -> TrajectoryFile:
             raise FormatError(f"{where}: no trajectory {key!r} (the file has {len(group)})")
         trajectories[key] = _read_one(group[key], f"{where}: trajectory {key!r}")
     known = {"format", "format_version", "dt", "gravity"}
-    attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in known}
+    attrs = {k: _plain(v) for k, v in f.attrs.items() if k not in known and _is_plain(v)}
     return TrajectoryFile(
         dt=float(f.attrs["dt"]),
         gravity=np.asarray(f.attrs["gravity"], np.float64).reshape(-1),
@@ -369,6 +377,14 @@ def _read_dataset(group, field: str, where: str) -> np.ndarray:
             f"{where}: field {field!r} claims shape {dataset.shape} but the file stores almost none of it"
         )
     return dataset[()]
+
+
+def _is_plain(value) -> bool:
+    """Whether an extra root attribute is text or numbers (kept in TrajectoryFile.attrs);
+    object references, opaque and compound values are left out."""
+    if isinstance(value, (str, bytes, int, float, bool)):
+        return True
+    return isinstance(value, (np.generic, np.ndarray)) and value.dtype.kind in "biufcSU"
 
 
 def _plain(value):

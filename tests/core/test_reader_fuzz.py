@@ -427,3 +427,92 @@ def test_trajectory_file_of_the_wrong_shape(tmp_path):
         with h5py.File(path, "a") as f:
             change(f)
         _refuses_clearly(read_trajectories, path, FormatError)
+
+
+# --- Containers that get past the first check ---
+
+
+def _npz_member_replaced(source, target, member, transform):
+    """A copy of the .npz `source` whose `member` (.npy) bytes are transform(bytes)."""
+    import zipfile
+
+    with zipfile.ZipFile(source) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    members[member] = transform(members[member])
+    with zipfile.ZipFile(target, "w") as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+    return target
+
+
+def _header_unclosed(data: bytes) -> bytes:
+    """The .npy header's dict left open: numpy's header parser meets the end of its text."""
+    length = int.from_bytes(data[8:10], "little")
+    header = data[10 : 10 + length].replace(b"}", b" ").replace(b"(", b"((")
+    return data[:10] + header + data[10 + length :]
+
+
+@pytest.mark.parametrize(
+    "transform", [_header_unclosed, lambda data: data[:20], lambda data: data[:10] + b"\xff" * 40]
+)
+def test_npz_members_with_a_damaged_npy_header_are_refused_in_one_line(tmp_path, transform):
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.object_extraction import _read_depth
+
+    cameras = _cameras_file(tmp_path / "cameras.npz")
+    damaged = _npz_member_replaced(cameras, tmp_path / "damaged.npz", "K.npy", transform)
+    _refuses_clearly(read_cameras, damaged, FormatError)
+    np.savez(tmp_path / "depth.npz", depth=np.ones((8, 48, 64)))
+    depth = _npz_member_replaced(tmp_path / "depth.npz", tmp_path / "d.npz", "depth.npy", transform)
+    from fignetctl.core.cameras import read_cameras as read
+
+    _refuses_clearly(lambda path: _read_depth(path, read(cameras)), depth, FormatError)
+
+
+def test_a_valid_trajectory_file_with_gcol_bytes_and_an_object_reference_is_read(tmp_path):
+    """Bytes that look like a global heap's signature inside a dataset or an attribute, and an
+    attribute holding an HDF5 object reference: the file reads (the reference is left out)."""
+    import h5py
+
+    path = write_trajectories(tmp_path / "t.h5", box_drop_file(frames=6), compression=None)
+    with h5py.File(path, "a") as f:
+        f.attrs["link"] = f["meshes"].ref
+        f.create_dataset("extra", data=np.frombuffer(b"GCOL\x01" + bytes(range(200)), np.uint8))
+        f.attrs["blob"] = np.void(b"GCOL\x01\x00\x00\x00" + b"\xff" * 8 + bytes(40))
+        f.attrs["note"] = "GCOL\x01\x10 in a note"
+    data = read_trajectories(path)
+    assert len(data.trajectories) == 1 and "link" not in data.attrs and "blob" not in data.attrs
+    assert data.attrs["note"].startswith("GCOL")
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    """A few hundred bytes of PNG whose header declares width x height pixels."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(bytes(64)))
+        + chunk(b"IEND", b"")
+    )
+
+
+def test_an_image_declaring_billions_of_pixels_is_refused_in_one_line(tmp_path):
+    import cv2
+
+    from fignetctl.core.media import read_image
+    from fignetctl.core.sfm import list_images
+
+    (tmp_path / "images").mkdir()
+    bomb = tmp_path / "images" / "bomb.png"
+    bomb.write_bytes(_png_claiming(100_000, 100_000))
+    for flags in (None, cv2.IMREAD_COLOR, cv2.IMREAD_GRAYSCALE):
+        with pytest.raises(FormatError, match="more pixels than OpenCV reads") as caught:
+            read_image(bomb, flags)
+        assert "\n" not in str(caught.value)
+    _refuses_clearly(list_images, tmp_path / "images", FormatError)

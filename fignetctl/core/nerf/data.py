@@ -10,8 +10,9 @@ import numpy as np
 import torch
 
 from fignetctl.core.cameras import Cameras, check_images_match
+from fignetctl.core.media import read_image
 from fignetctl.core.pinhole import pixel_rays, scale_intrinsics
-from fignetctl.errors import FignetError, FormatError
+from fignetctl.errors import FignetError
 
 
 @dataclasses.dataclass
@@ -44,9 +45,7 @@ def load_views(image_dir, cameras: Cameras, max_side: int) -> Views:
     width, height = max(1, round(cameras.width * scale)), max(1, round(cameras.height * scale))
     images = np.empty((len(files), height, width, 3), np.float32)
     for i, file in enumerate(files):
-        image = cv2.imread(str(file), cv2.IMREAD_COLOR)
-        if image is None:
-            raise FormatError(f"{file}: not a readable image")
+        image = read_image(file, cv2.IMREAD_COLOR)
         if (width, height) != (cameras.width, cameras.height):
             image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
         images[i] = image[..., ::-1].astype(np.float32) / 255.0

@@ -19,8 +19,8 @@ import torch
 
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.documents import read_torch_document
-from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.core.nerf.config import NerfConfig
+from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.nerf"

@@ -10,8 +10,8 @@ from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.field import GridField, OccupancyGrid
-from fignetctl.core.pinhole import pixel_rays
 from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
+from fignetctl.core.pinhole import pixel_rays
 from fignetctl.errors import FignetError
 
 BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0), "learned": (0.5, 0.5, 0.5)}

@@ -1,7 +1,13 @@
-"""Atomic outputs: write to a temporary file (or folder) beside the target, then rename."""
+"""Atomic outputs: write to a temporary file (or folder) beside the target, then rename.
+
+A temporary's name holds the writing process's id (`.{name}.{pid}-{random}.tmp…`): one that a
+killed run left behind (kill -9, a power cut) is removed by the next write of the same output
+once no process of that id is running.
+"""
 
 import contextlib
 import fnmatch
+import glob
 import os
 import shutil
 import tempfile
@@ -20,8 +26,9 @@ def atomic_path(path, suffix=None):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = path.suffix if suffix is None else suffix
-    # The real extension stays last: some writers (OpenCV video) choose the format by it.
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
+    remove_stale_temporaries(path.parent, path.stem, f".tmp{suffix}")
+    # The real extension stays last: some writers (PyAV, OpenCV) choose the format by it.
+    fd, tmp = tempfile.mkstemp(prefix=_prefix(path.stem), suffix=f".tmp{suffix}", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     os.chmod(tmp, 0o666 & ~_current_umask())  # mkstemp makes 0600; outputs get the usual mode
@@ -46,8 +53,10 @@ class StagedDirectory:
         self.target, self.owned = Path(target), tuple(owned)
         self.check_owned()
         self.target.parent.mkdir(parents=True, exist_ok=True)
+        for suffix in (".tmp", ".old"):
+            remove_stale_temporaries(self.target.parent, self.target.name, suffix)
         self.path = Path(
-            tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".tmp", dir=self.target.parent)
+            tempfile.mkdtemp(prefix=_prefix(self.target.name), suffix=".tmp", dir=self.target.parent)
         )
         os.chmod(self.path, 0o777 & ~_current_umask())
 
@@ -72,7 +81,7 @@ class StagedDirectory:
         old = None
         if self.target.exists():
             old = Path(
-                tempfile.mkdtemp(prefix=f".{self.target.name}.", suffix=".old", dir=self.target.parent)
+                tempfile.mkdtemp(prefix=_prefix(self.target.name), suffix=".old", dir=self.target.parent)
             )
             os.replace(self.target, old / "previous")
         os.replace(self.path, self.target)
@@ -97,6 +106,37 @@ def atomic_directory(path, owned):
     with StagedDirectory(path, owned) as staged:
         yield staged.path
         staged.commit()
+
+
+def _prefix(name: str) -> str:
+    return f".{name}.{os.getpid()}-"
+
+
+def remove_stale_temporaries(folder, name: str, suffix: str) -> list:
+    """Remove the temporaries `.{name}.{pid}-*{suffix}` in `folder` whose writing process is no
+    longer running (a killed run's leftovers); returns what was removed."""
+    removed = []
+    start = f".{name}."
+    for entry in Path(folder).glob(f".{glob.escape(name)}.*-*{glob.escape(suffix)}"):
+        pid = entry.name[len(start) :].split("-", 1)[0]
+        if not pid.isdigit() or _running(int(pid)):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+        removed.append(entry)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # another user's process, or no pid at all: leave the file alone
+    return True
 
 
 def _current_umask():

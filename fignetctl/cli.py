@@ -61,9 +61,24 @@ class LazyGroup(click.Group):
         except FignetError as error:
             raise click.ClickException(str(error)) from None
         except MemoryError:
-            raise click.ClickException("out of memory: try a smaller input or batch") from None
+            raise click.ClickException(OUT_OF_MEMORY) from None
+        except RuntimeError as error:  # torch reports a failed allocation as a RuntimeError
+            if not is_out_of_memory(error):
+                raise
+            raise click.ClickException(OUT_OF_MEMORY) from None
         except OSError as error:  # a file the command could not open, read or write
             raise click.ClickException(os_error_sentence(error)) from None
+
+
+OUT_OF_MEMORY = "out of memory: try a smaller input, batch, resolution or --rays-per-batch"
+
+
+def is_out_of_memory(error: RuntimeError) -> bool:
+    """Whether torch (CPU allocator, CUDA, MPS) failed to allocate memory."""
+    text = str(error).lower()
+    return type(error).__name__ == "OutOfMemoryError" or any(
+        phrase in text for phrase in ("out of memory", "can't allocate memory", "failed to allocate")
+    )
 
 
 def os_error_sentence(error: OSError) -> str:

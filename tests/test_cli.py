@@ -105,3 +105,39 @@ def test_readers_refuse_pipes_and_directories_without_waiting(tmp_path):
         require_regular_file(tmp_path)
     with pytest.raises(FormatError, match="no such model file"):
         require_regular_file(tmp_path / "none.pt", "model")
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        MemoryError(),
+        RuntimeError("[enforce fail at alloc_cpu.cpp:119] DefaultCPUAllocator: can't allocate memory"),
+        RuntimeError("CUDA out of memory. Tried to allocate 2.00 GiB"),
+        "torch",
+    ],
+)
+def test_a_failed_allocation_is_one_line_that_says_what_to_reduce(tmp_path, monkeypatch, error):
+    import torch
+
+    from fignetctl.commands import render_views
+
+    def run(*args, **kwargs):
+        raise torch.OutOfMemoryError("CUDA error: out of memory") if error == "torch" else error
+
+    monkeypatch.setattr(render_views.stage, "run", run)
+    result = CliRunner().invoke(cli, ["render-views", "-o", str(tmp_path / "capture")])
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert result.output.strip().splitlines() == [
+        "Error: out of memory: try a smaller input, batch, resolution or --rays-per-batch"
+    ]
+
+
+def test_another_runtime_error_is_not_taken_for_memory(tmp_path, monkeypatch):
+    from fignetctl.commands import render_views
+
+    def run(*args, **kwargs):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(render_views.stage, "run", run)
+    result = CliRunner().invoke(cli, ["render-views", "-o", str(tmp_path / "capture")])
+    assert isinstance(result.exception, RuntimeError) and str(result.exception) == "a bug"

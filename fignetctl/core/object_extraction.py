@@ -260,11 +260,10 @@ def read_user_masks(folder, cameras) -> dict:
 def _write_masks(folder, views):
     import cv2
 
-    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.atomic import atomic_directory
 
     if not views:
         return
-    folder.mkdir(parents=True, exist_ok=True)
-    for view in views:
-        with atomic_path(folder / (Path(view.name).stem + ".png")) as tmp:
-            cv2.imwrite(str(tmp), view.mask.astype(np.uint8) * 255)
+    with atomic_directory(folder, ("*.png",)) as tmp:  # one run's masks, never mixed with another's
+        for view in views:
+            cv2.imwrite(str(tmp / (Path(view.name).stem + ".png")), view.mask.astype(np.uint8) * 255)

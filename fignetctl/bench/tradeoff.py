@@ -702,19 +702,20 @@ def sweep_marching_cubes(
 def sweep_nerf_steps(curve_path, config: TradeoffConfig) -> dict:
     """Points of a fit-nerf learning curve (benchmarks/bench_nerf.py's json): held-out PSNR
     against training seconds; one run, so each point is n=1."""
-    data = json.loads(Path(curve_path).read_text())
-    points = []
-    for run in data.get("results", []):
-        for row in run.get("curve", []):
-            single = lambda v: {"median": float(v), "q25": float(v), "q75": float(v), "n": 1}  # noqa: E731
-            points.append(
-                {
-                    "setting": f"{run.get('preset', '?')} {row['step']}",
-                    "seconds": single(row["train_seconds"]),
-                    "error": single(row["held_out_psnr"]),
-                    "depth_error_percent_of_scene": row.get("depth_error_percent_of_scene"),
-                }
-            )
+    from fignetctl.core.documents import require_regular_file
+
+    try:
+        data = json.loads(require_regular_file(curve_path).read_text())
+    except (ValueError, UnicodeDecodeError) as error:  # JSONDecodeError is a ValueError
+        raise FignetError(f"{curve_path}: not a json learning curve ({type(error).__name__})") from None
+    if not isinstance(data, dict):
+        raise FignetError(f"{curve_path}: not a json learning curve (benchmarks/bench_nerf.py writes one)")
+    try:
+        points = _nerf_curve_points(data)
+    except (KeyError, TypeError, AttributeError, ValueError) as error:
+        raise FignetError(
+            f"{curve_path}: not a fit-nerf learning curve ({type(error).__name__}: {error})"
+        ) from None
     if not points:
         raise FignetError(f"{curve_path}: no learning curve in it (benchmarks/bench_nerf.py writes one)")
     notes = [
@@ -736,6 +737,23 @@ def sweep_nerf_steps(curve_path, config: TradeoffConfig) -> dict:
         config=config,
         inputs=file_inputs(curve_path),
     )
+
+
+def _nerf_curve_points(data: dict) -> list:
+    """The (setting, seconds, PSNR) points of benchmarks/bench_nerf.py's json."""
+    points = []
+    for run in data.get("results", []):
+        for row in run.get("curve", []):
+            single = lambda v: {"median": float(v), "q25": float(v), "q75": float(v), "n": 1}  # noqa: E731
+            points.append(
+                {
+                    "setting": f"{run.get('preset', '?')} {row['step']}",
+                    "seconds": single(row["train_seconds"]),
+                    "error": single(row["held_out_psnr"]),
+                    "depth_error_percent_of_scene": row.get("depth_error_percent_of_scene"),
+                }
+            )
+    return points
 
 
 def sweep_device(data_path, config: TradeoffConfig, on_progress=None) -> dict:

@@ -238,6 +238,8 @@ def import_transforms_json(path, image_dir=None) -> Cameras:
                 matrix = np.vstack([matrix, [0, 0, 0, 1]])
             if matrix.shape != (4, 4):
                 raise ValueError(f"transform_matrix has shape {matrix.shape}")
+            if not np.isfinite(matrix).all():
+                raise ValueError("transform_matrix holds NaN or infinite numbers")
             intrinsics = {**document, **frame}
             _refuse_distortion(intrinsics, where)
             width, height = _frame_size(intrinsics, file)

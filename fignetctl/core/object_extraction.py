@@ -132,7 +132,7 @@ def _view(index, cameras, model, depth_images, image_dir, need_image):
 def _image_dir(inputs, cameras) -> Path:
     if inputs.images:
         return Path(inputs.images)
-    if inputs.prompts_json:
+    if inputs.prompts_json and Path(inputs.prompts_json).is_file():  # never wait on a FIFO
         try:
             folder = json.loads(Path(inputs.prompts_json).read_text()).get("image_dir", "images")
             candidate = Path(inputs.prompts_json).parent / folder

@@ -24,7 +24,7 @@ COMMANDS = {
     "bench-memory": "bench_memory:bench_memory",
     "render-views": "render_views:render_views",
     "fit-nerf": "fit_nerf:fit_nerf",
-    "render-nerf": "fit_nerf:render_nerf",
+    "render-nerf": "render_nerf:render_nerf",
     "capture-poses": "capture_poses:capture_poses",
     "extract-mesh": "extract_mesh:extract_mesh",
     "build-graph": "build_graph:build_graph",

@@ -50,7 +50,13 @@ json_option = click.option(
 
 def json_path_checked(json_path, overwrite: bool):
     """--json as a Path (None when not given), refused at the start if it exists without --overwrite."""
-    return None if json_path is None else output_path(json_path, overwrite, "--json")
+    return optional_output(json_path, overwrite, "--json")
+
+
+def optional_output(path, overwrite: bool, param_name: str):
+    """An optional output (--rerun, --log-csv, ...) as a Path, or None when not given; refused at
+    the start if it exists without --overwrite."""
+    return None if path is None else output_path(path, overwrite, param_name)
 
 
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace outputs that already exist.")

@@ -1,0 +1,128 @@
+"""fit-nerf: posed images (a folder and cameras.npz) -> a radiance field, nerf.pt."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from fignetctl.errors import FignetError
+from fignetctl.stages import check, setting, write_summary
+
+DEVICES = ("cpu", "cuda", "auto")
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    preset: str = setting(
+        "fast",
+        "fast: <=200 px images, diffuse colour, 64 -> 192 grid; quality: <=400 px, colour MLP, 64 -> 320.",
+        choices=("fast", "quality"),
+    )
+    steps: int | None = setting(
+        None, "Optimiser steps (a resumed run continues to this).  [default: the preset's]", low=1, high=10**7
+    )
+    max_image_side: int | None = setting(
+        None,
+        "Downscale images so the longer side is at most this.  [default: the preset's]",
+        low=8,
+        high=8192,
+    )
+    holdout_every: int | None = setting(
+        None, "Hold out views 0, k, 2k, ... for evaluation (0: none).  [default: 8]", low=0, high=10**5
+    )
+    rays_per_batch: int | None = setting(
+        None, "Rays per optimiser step.  [default: the preset's]", low=1, high=2**20
+    )
+    resume: bool = setting(False, "Continue the run saved in --output where it stopped.")
+    seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
+    device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
+
+
+def run(
+    images_dir,
+    cameras,
+    output,
+    settings: Settings = Settings(),
+    *,
+    overwrite=False,
+    rerun_path=None,
+    json_path=None,
+    progress=None,
+) -> dict:
+    """Fit a radiance field to the images in `images_dir` posed by `cameras` (cameras.npz) and
+    write it to `output` (nerf.pt, checkpointed while training; with `settings.resume`, the run
+    saved there is continued). `progress` makes the step bar (a tqdm-like factory; none shown
+    when None). Optionally a rerun recording and the --json summary. Returns the summary
+    (output and the metrics stored in nerf.pt) with a one-line `message` (held-out PSNR)."""
+    import torch
+
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.nerf.config import preset_config
+    from fignetctl.core.nerf.data import inputs_hash
+    from fignetctl.core.nerf.training import finish, make_trainer
+    from fignetctl.core.provenance import stamp
+
+    check(settings)
+    if settings.resume and overwrite:
+        raise FignetError("--resume continues --output, --overwrite replaces it: give one")
+    path = Path(output)
+    device = resolve_device(settings.device)
+    if device == "cpu":
+        torch.set_num_threads(max(1, min(torch.get_num_threads(), 4)))
+    camera_set = read_cameras(cameras)
+    config = preset_config(
+        settings.preset,
+        steps=settings.steps,
+        max_image_side=settings.max_image_side,
+        holdout_every=settings.holdout_every,
+        rays_per_batch=settings.rays_per_batch,
+        seed=settings.seed,
+    )
+    data_hash = inputs_hash(images_dir, cameras)
+    resume_from = path if settings.resume and path.exists() else None
+    trainer = make_trainer(images_dir, camera_set, config, device, resume_from, data_hash)
+    trainer.provenance = stamp(images=images_dir, cameras=cameras)
+    with _bar(
+        progress, total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
+    ) as bar:
+
+        def on_step(record):
+            bar.update(1)
+            bar.set_postfix(loss=f"{record['loss']:.4g}", psnr=f"{record['psnr']:.2f}")
+
+        trainer.run(path, on_step)
+    metrics, renderings = finish(trainer, path)
+    message = (
+        f"held-out PSNR {metrics['held_out_psnr']:.2f} dB over {len(metrics['held_out'])} views, "
+        f"{metrics['train_seconds']:.0f} s of training"
+    )
+    if rerun_path:
+        from fignetctl.core.nerf.visualize import log_fit_to_rerun
+
+        log_fit_to_rerun(rerun_path, trainer, renderings)
+    summary = {"output": str(path), **metrics}
+    write_summary(json_path, summary, trainer.provenance)
+    return {**summary, "message": message}
+
+
+def resolve_device(device: str) -> str:
+    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is refused (in
+    the words of the --device option's check). Shared by the stages that run torch."""
+    import torch
+
+    if device not in DEVICES:
+        raise FignetError(f"device = {device!r}: choose one of {', '.join(DEVICES)}")
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise FignetError("Invalid value for --device: CUDA was asked for but torch sees no GPU")
+    return device
+
+
+def _bar(progress, **kwargs):
+    """A progress bar from the `progress` factory, or a silent tqdm."""
+    if progress is not None:
+        return progress(**kwargs)
+    from tqdm import tqdm
+
+    return tqdm(disable=True, **kwargs)

@@ -1,8 +1,11 @@
 """`fignetctl evaluate`: the paper's metrics of a model against ground truth, with baselines."""
 
+import json
+
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import evaluate as stage
 
 
 @click.command("evaluate")
@@ -10,51 +13,25 @@ from fignetctl.commands import options
 @click.option(
     "--model",
     "model_path",
-    default=None,
     help="Model file, or a bundled one: fignet-star-movi-b, fignet-movi-b.  [default: fignet-star-movi-b]",
-)
-@click.option(
-    "-n",
-    "--max-trajectories",
-    type=click.IntRange(min=1, max=10**7),
-    default=None,
-    help="Evaluate only the first N trajectories.",
 )
 @click.option(
     "-o",
     "--output",
     type=click.Path(dir_okay=False),
-    default=None,
     help="Write the metrics json here (otherwise to stdout).",
 )
-@options.sleep_option(default=False)
-@options.free_flight_option(default=False)
-@options.keep_out_option(default=False)
-@click.option(
-    "--with-guards",
-    is_flag=True,
-    help="Also evaluate the model as `rollout` runs it (free flight, keep-out, sleeping), as the method model_with_guards.",
+@options.settings_options(
+    stage.Settings,
+    max_trajectories=click.option(
+        "-n",
+        "--max-trajectories",
+        type=click.IntRange(min=1, max=10**7),
+        help="Evaluate only the first N trajectories.",
+    ),
 )
-@click.option(
-    "--ceilings",
-    is_flag=True,
-    help="Also evaluate PyBullet restarted every frame from what a model is given (ceiling_velocity, ceiling_finite_difference): what physics allows. DATA must come from make-dataset.",
-)
-@options.device_option
 @options.overwrite_option
-def evaluate(
-    data,
-    model_path,
-    max_trajectories,
-    output,
-    sleep,
-    free_flight,
-    keep_out,
-    with_guards,
-    ceilings,
-    device,
-    overwrite,
-):
+def evaluate(data, model_path, output, overwrite, **settings):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (mean and RMS, deg) of the dynamic objects after 50
@@ -75,34 +52,9 @@ def evaluate(
       fignetctl evaluate test.h5 -o metrics.json
       fignetctl evaluate test.h5 --with-guards --ceilings -o metrics.json
     """
-    import json
-
-    from fignetctl.core.model.runs import evaluate_file, load_model
-    from fignetctl.core.provenance import INPUTS_KEY, stamp
-
     path = options.output_path(output, overwrite) if output else None
-    simulator = load_model(model_path, options.resolve_device(device))
-    with options.progress(unit="trajectory", desc="evaluate") as bar:
-        metrics = evaluate_file(
-            simulator,
-            data,
-            max_trajectories,
-            on_scene=lambda _: bar.update(1),
-            sleep=sleep,
-            free_flight=free_flight,
-            keep_out=keep_out,
-            with_guards=with_guards,
-            ceilings=ceilings,
-        )
-    metrics["model"] = str(model_path or "fignet-star-movi-b")
-    metrics.update(stamp(data=data))
-    metrics[INPUTS_KEY]["model"] = simulator.source_sha256
-    text = json.dumps(metrics, indent=2)
-    if path is None:
-        click.echo(text)
-        return
-    from fignetctl.core.atomic import atomic_path
-
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-    click.echo(str(path))
+    settings["device"] = options.resolve_device(settings["device"])
+    metrics = stage.run(
+        data, path, options.settings_from(stage.Settings, settings), model_path, options.progress
+    )
+    click.echo(str(path) if path else json.dumps(metrics, indent=2))

@@ -1,0 +1,67 @@
+"""evaluate: the paper's metrics of a model against ground truth, with baselines, as json."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from fignetctl.stages import check, setting
+from fignetctl.stages.rollout import no_progress, resolve_device
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    max_trajectories: int | None = setting(None, "Evaluate only the first N trajectories.", low=1, high=10**7)
+    sleep: bool = setting(
+        False, "Stop simulating objects at rest until something comes near (docs/simulator.md)."
+    )
+    free_flight: bool = setting(
+        False, "Move objects that touch nothing in exact free flight, not by the network (docs/simulator.md)."
+    )
+    keep_out: bool = setting(
+        False, "Move an object that passed into static geometry back out after each step (docs/simulator.md)."
+    )
+    with_guards: bool = setting(
+        False,
+        "Also evaluate the model as `rollout` runs it (free flight, keep-out, sleeping): model_with_guards.",
+    )
+    ceilings: bool = setting(
+        False, "Also evaluate PyBullet restarted every frame from a model's inputs (make-dataset DATA only)."
+    )
+    device: str = setting(
+        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
+    )
+
+
+def run(data, output=None, settings: Settings = Settings(), model=None, progress=None) -> dict:
+    """Roll out the model file (or bundled model name) `model` from frames 0-1 of every
+    trajectory of the file `data` and compare (fignetctl.core.model.runs.evaluate_file); the
+    metrics, with the model's name and the inputs' hashes, are written to the json file
+    `output` atomically when given, and returned."""
+    import json
+
+    from fignetctl.core.model.runs import evaluate_file, load_model
+    from fignetctl.core.provenance import INPUTS_KEY, stamp
+
+    check(settings)
+    simulator = load_model(model, resolve_device(settings.device))
+    with (progress or no_progress)(unit="trajectory", desc="evaluate") as bar:
+        metrics = evaluate_file(
+            simulator,
+            data,
+            settings.max_trajectories,
+            on_scene=lambda _: bar.update(1),
+            sleep=settings.sleep,
+            free_flight=settings.free_flight,
+            keep_out=settings.keep_out,
+            with_guards=settings.with_guards,
+            ceilings=settings.ceilings,
+        )
+    metrics["model"] = str(model or "fignet-star-movi-b")
+    metrics.update(stamp(data=data))
+    metrics[INPUTS_KEY]["model"] = simulator.source_sha256
+    if output is not None:
+        from fignetctl.core.atomic import atomic_path
+
+        with atomic_path(output) as tmp:
+            tmp.write_text(json.dumps(metrics, indent=2))
+    return metrics

@@ -1,0 +1,142 @@
+"""rollout: a scene simulated forward with a learned model, into a trajectory file."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from fignetctl.errors import FignetError
+from fignetctl.stages import check, setting, write_summary
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    steps: int = setting(100, "Frames to predict after the scene's first two.", low=1, high=10**6)
+    trajectory: str | None = setting(None, "Which trajectory of SCENE.  [default: the first]")
+    sim_scale: float | str = setting(
+        "auto",
+        "Simulate the scene scaled by this factor, or 'auto': to the model's sizes if outside them.",
+        low=1e-3,
+        high=1e3,
+    )
+    sleep: bool = setting(
+        True, "Stop simulating objects at rest until something comes near (docs/simulator.md)."
+    )
+    free_flight: bool = setting(
+        True, "Move objects that touch nothing in exact free flight, not by the network (docs/simulator.md)."
+    )
+    keep_out: bool = setting(
+        True, "Move an object that passed into static geometry back out after each step (docs/simulator.md)."
+    )
+    device: str = setting(
+        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
+    )
+
+
+def parse_sim_scale(value) -> float | str:
+    """'auto', or a scale between 0.001 and 1000 (a number or its text); FignetError otherwise."""
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    try:
+        scale = float(value)
+    except (TypeError, ValueError):
+        scale = float("nan")
+    if not (math.isfinite(scale) and 1e-3 <= scale <= 1e3):
+        raise FignetError(f"{value!r} is not 'auto' or a scale between 0.001 and 1000")
+    return scale
+
+
+def run(
+    scene,
+    output,
+    settings: Settings = Settings(),
+    model=None,
+    rerun_path=None,
+    json_path=None,
+    progress=None,
+    report=None,
+) -> dict:
+    """Predict `settings.steps` frames after the first two of the trajectory file `scene` with the
+    model file (or bundled model name) `model`, and write them to `output` atomically, with
+    the model's and the scene's hashes. `report` (default: stderr) gets a note when the scene is
+    simulated at another scale. A rollout that goes wrong still writes the frames before the failure, then
+    raises a FignetError naming the step and object. Returns the summary (also the --json)."""
+    from fignetctl.core.model.rollout import RolloutError
+    from fignetctl.core.model.runs import load_model, rollout_file
+    from fignetctl.core.provenance import from_strings
+
+    check(settings)
+    sim_scale = parse_sim_scale(settings.sim_scale)
+    simulator = load_model(model, resolve_device(settings.device))
+    with (progress or no_progress)(total=settings.steps, unit="step", desc="rollout") as bar:
+        try:
+            result = rollout_file(
+                simulator,
+                scene,
+                settings.trajectory,
+                settings.steps,
+                on_step=lambda _: bar.update(1),
+                sim_scale=sim_scale,
+                sleep=settings.sleep,
+                free_flight=settings.free_flight,
+                keep_out=settings.keep_out,
+            )
+            error = None
+        except RolloutError as failure:
+            result, error = failure.partial_file, failure
+    _write(result, output, rerun_path)
+    scale = float(result.attrs["sim_scale"])
+    if scale != 1.0:
+        (report or to_stderr)(
+            f"simulated at {scale:.4g}x its size, as the model knows objects of that size; "
+            f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)"
+        )
+    trajectory = next(iter(result.trajectories.values()))
+    summary = {
+        "output": str(output),
+        "steps": trajectory.num_frames - 2,
+        "sim_scale": scale,
+        "frame_seconds": float(result.dt),
+        "final_positions": trajectory.positions[-1][~trajectory.static],
+        "error": None if error is None else str(error),
+    }
+    write_summary(json_path, summary, from_strings(result.attrs))
+    if error is not None:
+        raise FignetError(f"{error} (written to {output})")
+    return summary
+
+
+def _write(result, path, rerun_path):
+    from fignetctl.core.trajectory import write_trajectories
+
+    write_trajectories(path, result)
+    if rerun_path:
+        from fignetctl.core.viz import log_trajectory_to_rerun
+
+        log_trajectory_to_rerun(result, next(iter(result.trajectories)), rerun_path)
+
+
+def resolve_device(device: str) -> str:
+    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is refused.
+    (The device step of the train, rollout and evaluate stages.)"""
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise FignetError("--device: CUDA was asked for but torch sees no GPU")
+    return device
+
+
+def to_stderr(line: str) -> None:
+    """A stage's note for the user, one line on stderr (where a caller gives no `report`)."""
+    import sys
+
+    print(line, file=sys.stderr, flush=True)
+
+
+def no_progress(iterable=None, **kwargs):
+    """A progress bar that shows nothing (a stage's default when its caller gives none)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, **{**kwargs, "disable": True})

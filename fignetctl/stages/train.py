@@ -1,0 +1,166 @@
+"""train: a learned simulator, FIGNet* (or FIGNet), trained on a trajectory file, resumably."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+from fignetctl.errors import FignetError
+from fignetctl.stages import check, setting
+from fignetctl.stages.rollout import no_progress, resolve_device
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    model: str = setting(
+        "fignet-star", "FIGNet* (no surface-mesh edges) or FIGNet.", choices=("fignet-star", "fignet")
+    )
+    size: str = setting(
+        "small",
+        "Network size preset (paper: latent 128, 10 message-passing steps).",
+        choices=("tiny", "small", "paper"),
+    )
+    collision_radius: float | None = setting(
+        None, "Face-face edge radius in metres.  [default: 0.2]", low=0, low_open=True
+    )
+    max_faces: int = setting(
+        256,
+        "Decimate each moving object's mesh to at most this many faces (static meshes stay whole).",
+        low=4,
+        high=10**6,
+    )
+    max_static_edge: float = setting(
+        0.0,
+        "Subdivide static meshes (the floor) to edges no longer than this (m); 0 keeps them whole.",
+        low=0,
+    )
+    max_vertex_offset: float = setting(
+        1.0, "Clamp the face-face features' vertex offsets to this length (m); 0: no clamp.", low=0
+    )
+    state: str = setting(
+        "velocities",
+        "The model's input: frame t and recorded velocities, or frames t-1 and t (docs/simulator.md).",
+        choices=("velocities", "positions"),
+    )
+    static_receivers: bool = setting(
+        False, "Face-face edges into static faces too (as the models before this option)."
+    )
+    speculative: bool = setting(
+        False, "Also pair moving faces with static ones up to a step ahead (docs/simulator.md)."
+    )
+    target_keeps_noise: bool = setting(
+        True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
+    )
+    loss: str = setting(
+        "mse",
+        "Loss on the normalized accelerations; huber weighs rare contact spikes less.",
+        choices=("mse", "huber"),
+    )
+    steps: int = setting(20000, "Total optimiser steps (a resumed run continues to this).", low=1, high=10**9)
+    batch_size: int = setting(4, "Scenes per step.", low=1, high=4096)
+    learning_rate: tuple[float, float] = setting(
+        (1e-3, 1e-4),
+        "Adam's learning rate decays exponentially from INITIAL to FINAL over --steps.",
+        low=0,
+        low_open=True,
+    )
+    workers: int = setting(
+        1, "Processes that build the training graphs (0: build them here).", low=0, high=256
+    )
+    precision: str = setting(
+        "auto",
+        "Training arithmetic: bf16 mixed precision, fp32, or auto (bf16 where natively supported).",
+        choices=("auto", "bf16", "fp32"),
+    )
+    checkpoint_every: int = setting(
+        500, "Write --output (and --log-csv) every this many steps.", low=1, high=10**9
+    )
+    resume: bool = setting(False, "Continue the run saved in --output exactly where it stopped.")
+    seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
+    device: str = setting(
+        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
+    )
+
+
+def run(
+    dataset,
+    output,
+    settings: Settings = Settings(),
+    init_from=None,
+    log_csv=None,
+    rerun_path=None,
+    overwrite=False,
+    progress=None,
+) -> dict:
+    """Train on the trajectory file `dataset`, writing the model file `output` atomically every
+    `checkpoint_every` steps (with the training data's hash); `resume` continues the run saved
+    in `output`, `init_from` starts a new one from a model file's weights. `log_csv` gets step,
+    loss and seconds at every checkpoint, `rerun_path` the loss curve. Data-parallel under
+    torchrun: every rank trains, rank 0 writes. Returns the summary (output, steps, loss, rank)."""
+    from fignetctl.core.model.training import (
+        TrainingConfig,
+        make_trainer,
+        resolve_precision,
+        simulator_config_for,
+        write_loss_csv,
+    )
+
+    check(settings)
+    rates = settings.learning_rate
+    if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
+        raise FignetError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
+    if settings.resume and overwrite:
+        raise FignetError("--resume continues --output, --overwrite replaces it: give one")
+    if settings.resume and init_from:
+        raise FignetError("--resume continues --output, --init-from starts a new run: give one")
+    output, device = Path(output), resolve_device(settings.device)
+    simulator_config = simulator_config_for(
+        settings.model,
+        settings.size,
+        settings.collision_radius,
+        settings.max_faces,
+        settings.max_static_edge or None,
+        settings.max_vertex_offset or None,
+        settings.speculative,
+        settings.state,
+        settings.static_receivers,
+    )
+    training_config = TrainingConfig(
+        steps=settings.steps,
+        batch_size=settings.batch_size,
+        learning_rate_initial=settings.learning_rate[0],
+        learning_rate_final=settings.learning_rate[1],
+        loss=settings.loss,
+        target_keeps_noise=settings.target_keeps_noise,
+        checkpoint_every=settings.checkpoint_every,
+        seed=settings.seed,
+        precision=resolve_precision(settings.precision, device),
+    )
+    resume_from = output if settings.resume and output.exists() else None
+    trainer = make_trainer(
+        dataset, simulator_config, training_config, device, resume_from, init_from, settings.workers
+    )
+    with (progress or no_progress)(
+        total=settings.steps,
+        initial=trainer.step,
+        unit="step",
+        desc="train",
+        disable=trainer.rank != 0 or None,
+    ) as bar:
+        trainer.run(
+            output,
+            on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")),
+            on_checkpoint=lambda: log_csv and trainer.rank == 0 and write_loss_csv(log_csv, trainer.history),
+        )
+    if trainer.rank == 0 and rerun_path:
+        from fignetctl.core.viz import log_scalars_to_rerun
+
+        log_scalars_to_rerun(rerun_path, "train", {"loss": [(h["step"], h["loss"]) for h in trainer.history]})
+    history = trainer.history
+    return {
+        "output": str(output),
+        "steps": trainer.step,
+        "loss": history[-1]["loss"] if history else None,
+        "rank": trainer.rank,
+    }

@@ -99,8 +99,8 @@ evaluate-velocity-checkpoint: $(DATA)/movi-b-test.h5 $(DATA)/fignet-star-movi-b-
 	    --out docs/results/long-rollout-network-alone-velocities.json
 
 checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
-	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt
-	$(BIN)/python -m fignetctl.core.model.export $(DATA)/fignet-movi-b.pt fignetctl/assets/models/fignet-movi-b.pt
+	$(BIN)/python scripts/export_model.py $(DATA)/fignet-star-movi-b.pt fignetctl/assets/models/fignet-star-movi-b.pt
+	$(BIN)/python scripts/export_model.py $(DATA)/fignet-movi-b.pt fignetctl/assets/models/fignet-movi-b.pt
 
 evaluate-checkpoints: $(DATA)/movi-b-test.h5
 	$(BIN)/fignetctl evaluate $< --model fignetctl/assets/models/fignet-star-movi-b.pt --ceilings -o docs/results/fignet-star-movi-b-test.json --overwrite

@@ -59,7 +59,7 @@ class LazyGroup(click.Group):
         try:
             return super().invoke(ctx)
         except FignetError as error:
-            raise click.ClickException(str(error)) from None
+            raise click.ClickException(as_flags(str(error))) from None
         except MemoryError:
             raise click.ClickException(OUT_OF_MEMORY) from None
         except RuntimeError as error:  # torch reports a failed allocation as a RuntimeError
@@ -68,6 +68,17 @@ class LazyGroup(click.Group):
             raise click.ClickException(OUT_OF_MEMORY) from None
         except OSError as error:  # a file the command could not open, read or write
             raise click.ClickException(os_error_sentence(error)) from None
+
+
+def as_flags(message: str) -> str:
+    """The library names a setting in backticks by its Python name (`sim_scale`, `gravity=plane`);
+    on the command line that is its flag (--sim-scale, --gravity plane)."""
+    import re
+
+    def flag(match):
+        return "--" + match[1].replace("_", "-") + (f" {match[2]}" if match[2] else "")
+
+    return re.sub(r"`([a-z][a-z0-9_]*)(?:=([^`\s]+))?`", flag, message)
 
 
 OUT_OF_MEMORY = "out of memory: try a smaller input, batch, resolution or --rays-per-batch"

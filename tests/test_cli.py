@@ -141,3 +141,41 @@ def test_another_runtime_error_is_not_taken_for_memory(tmp_path, monkeypatch):
     monkeypatch.setattr(render_views.stage, "run", run)
     result = CliRunner().invoke(cli, ["render-views", "-o", str(tmp_path / "capture")])
     assert isinstance(result.exception, RuntimeError) and str(result.exception) == "a bug"
+
+
+def test_settings_named_by_the_library_become_flags_on_the_command_line():
+    from fignetctl.cli import as_flags
+
+    assert as_flags("use `sim_scale=1`; or `gravity=plane`") == "use --sim-scale 1; or --gravity plane"
+    assert as_flags("try another `seed` or more `views`") == "try another --seed or more --views"
+    assert as_flags("a file from `fignetctl train`") == "a file from `fignetctl train`"
+
+
+def test_no_library_message_names_a_command_line_flag():
+    """fignetctl/core names settings by their Python names; the CLI turns them into flags. Every
+    string in core but docstrings is searched for a flag (--name), and no core module parses
+    arguments."""
+    import ast
+    import re
+    from pathlib import Path
+
+    import fignetctl
+
+    core = Path(fignetctl.__file__).parent / "core"
+    found = []
+    for path in core.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        docstrings = {  # a string standing alone as a statement documents what it follows
+            id(node.value)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+        }
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+                if re.search(r"(^|[\s(])--[a-z][a-z-]+", node.value):
+                    found.append(f"{path.name}:{node.lineno}: {node.value[:80]}")
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                names = [alias.name for alias in node.names] + [getattr(node, "module", None) or ""]
+                if {"argparse", "click"} & {name.split(".")[0] for name in names}:
+                    found.append(f"{path.name}:{node.lineno}: imports argparse or click")
+    assert not found, found

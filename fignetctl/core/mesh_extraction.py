@@ -209,7 +209,7 @@ def marching_cubes(values, axes, threshold):
     if values.max() <= threshold:
         raise FignetError(
             f"no density above the threshold {threshold:g} in the volume (max {values.max():.3g}); "
-            "lower --threshold or check the box / prompts"
+            "lower the `threshold` or check the `box` or the prompts"
         )
     padded = np.pad(values, 1, constant_values=0.0)
     try:

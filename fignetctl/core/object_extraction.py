@@ -59,7 +59,7 @@ def run_extraction(
     if inputs.box is not None:
         box = np.array(inputs.box, np.float64).reshape(2, 3)
         if np.any(box[1] <= box[0]):
-            raise FignetError("--box: x1, y1, z1 must be greater than x0, y0, z0")
+            raise FignetError("`box`: x1, y1, z1 must be greater than x0, y0, z0")
         views = []
     else:
         views = _masked_views(inputs, cameras, model, segmentation)
@@ -144,7 +144,7 @@ def _image_dir(inputs, cameras) -> Path:
     for candidate in (here / "images", here.parent / "images"):
         if candidate.is_dir():
             return candidate
-    raise FignetError(f"no images/ folder beside or above {inputs.cameras}; pass --images")
+    raise FignetError(f"no images/ folder beside or above {inputs.cameras}; give the `images`")
 
 
 def _read_image(path, cameras):
@@ -192,12 +192,12 @@ def parse_prompts(texts, cameras) -> dict:
         try:
             u, v = (int(round(float(x))) for x in pixel.split(","))
         except (ValueError, OverflowError):
-            raise FignetError(f"--prompt {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)") from None
+            raise FignetError(f"`prompt` {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)") from None
         if not view:
-            raise FignetError(f"--prompt {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)")
+            raise FignetError(f"`prompt` {text!r}: expected VIEW:U,V (e.g. view_001.png:181,142)")
         if not (0 <= u < cameras.width and 0 <= v < cameras.height):
             raise FignetError(
-                f"--prompt {text!r}: pixel {u},{v} is outside the {cameras.width}x{cameras.height} image"
+                f"`prompt` {text!r}: pixel {u},{v} is outside the {cameras.width}x{cameras.height} image"
             )
         prompts.setdefault(view_index(view, cameras), []).append((u, v))
     return prompts

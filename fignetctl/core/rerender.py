@@ -80,14 +80,14 @@ def choose_object(trajectory, object_name=None) -> int:
         index = names.index(object_name)
         if trajectory.static[index]:
             raise FignetError(
-                f"object {object_name!r} is static in the rollout; choose a moving one with --object"
+                f"object {object_name!r} is static in the rollout; choose a moving one with `object`"
             )
         return index
     dynamic = [i for i in range(len(names)) if not trajectory.static[i]]
     if len(dynamic) != 1:
         listed = ", ".join(names[i] for i in dynamic) or "none"
         raise FignetError(
-            f"the rollout has {len(dynamic)} dynamic objects ({listed}); choose one with --object"
+            f"the rollout has {len(dynamic)} dynamic objects ({listed}); choose one with `object`"
         )
     return dynamic[0]
 

@@ -214,7 +214,7 @@ def _check_registered(registered: int, total: int, matcher: str, settings: SfmSe
             log.warning("only %d of %d images registered; the others get no camera", registered, total)
         return
     other = (
-        "--matcher exhaustive" if matcher == "sequential" else "--matcher sequential for video-like sequences"
+        "`matcher=exhaustive`" if matcher == "sequential" else "`matcher=sequential` for video-like sequences"
     )
     raise FignetError(
         f"only {registered} of {total} images registered (need {needed}); try photos with more overlap "

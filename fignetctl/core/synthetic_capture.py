@@ -193,7 +193,7 @@ def render_capture(
         raise FignetError(f"bad capture setting: {error}") from None
     out_dir = Path(out_dir)
     if out_dir.exists() and not overwrite:
-        raise FignetError(f"{out_dir} exists; pass --overwrite to replace it")
+        raise FignetError(f"{out_dir} exists; pass `overwrite` to replace it")
     with atomic_directory(out_dir, CAPTURE_ENTRIES) as tmp:
         return _render_into(tmp, config, progress or (lambda iterable, **kw: iterable)) | {
             "output": str(out_dir)
@@ -324,7 +324,7 @@ def place_in_tray(assets, rng, tries=500):
                 poses.append((position, orientation))
                 break
         else:
-            raise FignetError(f"could not place {asset.name} in the tray without overlap; try another --seed")
+            raise FignetError(f"could not place {asset.name} in the tray without overlap; try another `seed`")
     return poses
 
 
@@ -685,7 +685,7 @@ def prompts_document(objects, masks, names, eyes, config) -> dict:
             chosen = _spread_views(scores, eyes, config.prompts_per_object, min_angle_deg=0.0)
         if len(chosen) < 2:
             raise FignetError(
-                f"{item.name} is visible in fewer than 2 views; try another --seed or more --views"
+                f"{item.name} is visible in fewer than 2 views; try another `seed` or more `views`"
             )
         points = [
             {

@@ -83,7 +83,7 @@ def pick_frames(
     neighbours : how many picks on each side form the median a pick is compared with
     """
     if every < 1:
-        raise FignetError(f"--every must be at least 1, not {every}")
+        raise FignetError(f"`every` must be at least 1, not {every}")
     folder = Path(folder)
     picks: list[PickedFrame] = []
     best = None

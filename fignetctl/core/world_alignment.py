@@ -166,7 +166,7 @@ def camera_up(cameras: Cameras) -> np.ndarray:
     norm = np.linalg.norm(up)
     if norm < 1e-6:
         raise FignetError(
-            "the cameras' up vectors cancel out; gravity cannot come from them (use --gravity plane)"
+            "the cameras' up vectors cancel out; gravity cannot come from them (use `gravity=plane`)"
         )
     return up / norm
 
@@ -249,7 +249,7 @@ def gravity(cameras: Cameras, settings: AlignmentSettings):
             raise FignetError(
                 f"no support plane found in the {len(cameras.points)} sparse points (a plane within "
                 f"{MAX_PLANE_TILT_DEG:.0f}° of the cameras' up holding {MIN_PLANE_INLIER_FRACTION:.0%} of them); "
-                "use --gravity cameras"
+                "use `gravity=cameras`"
             )
         log.warning("no support plane in the sparse points; up is the cameras' mean up vector")
     up = camera_up(cameras)
@@ -272,7 +272,7 @@ def scale_factor(cameras: Cameras, rotation, origin, settings: AlignmentSettings
     mean_height = float(levelled[:, 2].mean())
     if mean_height <= 1e-9:
         raise FignetError(
-            "the cameras are not above the support plane on average; use --gravity cameras or --baseline"
+            "the cameras are not above the support plane on average; use `gravity=cameras` or `baseline`"
         )
     source = "mean camera height" + (" (default)" if settings.camera_height is None else "")
     return height / mean_height, f"{source} = {height} m"

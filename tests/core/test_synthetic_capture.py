@@ -144,7 +144,7 @@ def test_an_existing_output_is_kept_unless_overwrite_and_a_failure_leaves_it(tmp
     out = tmp_path / "scene"
     out.mkdir()
     (out / "prompts.json").write_text("old")  # an earlier capture's file
-    with pytest.raises(FignetError, match="exists; pass --overwrite"):
+    with pytest.raises(FignetError, match="exists; pass `overwrite`"):
         capture.render_capture(out, **small)
 
     def broken(*args, **kwargs):

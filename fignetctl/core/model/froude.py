@@ -97,7 +97,7 @@ def scaled_scene(data, key, scale: float):
     if np.any(static & moving):
         raise FignetError(
             f"trajectory {key!r}: static object {int(np.flatnonzero(static & moving)[0])} moves over the given frames, "
-            "so the scene cannot be simulated at another scale; use --sim-scale 1"
+            "so the scene cannot be simulated at another scale; use `sim_scale=1`"
         )
     positions, quaternions = retimed_history(trajectory, data.dt, data.dt / math.sqrt(scale), data.gravity)
     velocities = angular = None

@@ -26,7 +26,7 @@ def load_model(path=None, device="cpu"):
         path = bundled_model_path(path or DEFAULT_BUNDLED)
         if not path.is_file():
             raise FignetError(
-                f"no bundled model at {path}; pass --model PATH (a file from `fignetctl train`)"
+                f"no bundled model at {path}; pass a `model` file (from `fignetctl train`)"
             )
     return load_checkpoint(path, device=device)
 
@@ -124,7 +124,7 @@ def warn_untrained_properties(simulator, trajectories) -> None:
         ):
             found.setdefault(sentence)
     for sentence in found:
-        log.warning("%s: the rollout extrapolates (see build-graph --active-* and --passive-*)", sentence)
+        log.warning("%s: the rollout extrapolates (see the active and passive properties of build-graph)", sentence)
 
 
 def rollout_result(

@@ -393,7 +393,7 @@ def _load_weights(simulator, path) -> None:
         simulator.load_state_dict(source.state_dict())
     except RuntimeError as error:
         raise FignetError(
-            f"{path}: its network differs from the one asked for (--model, --size); "
+            f"{path}: its network differs from the one asked for (`model`, `size`); "
             f"give the same ones ({str(error).splitlines()[0]})"
         ) from None
 

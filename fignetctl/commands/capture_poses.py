@@ -23,6 +23,8 @@ def _baseline():
 @_path("--import-transforms", help="Poses from a transforms.json (nerfstudio / instant-ngp), not COLMAP.")
 @_path("--import-colmap", folder=True, help="Poses from a COLMAP sparse model folder (.bin or .txt files).")
 @_path("--import-cameras", help="Re-align or convert an existing cameras.npz.")
+@_path("--undistorted-dir", folder=True, help="Distorted --camera-model: the undistorted images' folder.")
+@_path("--keep-colmap", folder=True, help="Keep COLMAP's workspace here: database.db, sparse/0, points.ply.")
 @_path("--export-transforms", help="Also write a transforms.json (OpenGL convention).")
 @_path("-o", "--output", required=True, help="cameras.npz to write.")
 @options.settings_options(stage.Settings, baseline=_baseline())
@@ -32,12 +34,11 @@ def _baseline():
 def capture_poses(output, json_path, overwrite, **values):
     """Camera poses of a folder of images or a video, in metres with z up (cameras.npz).
 
-    COLMAP (pycolmap, CPU) finds the poses with one shared pinhole camera; the up direction
-    comes from the support plane seen in the sparse points (moved to z = 0), the scale from
-    one length you measured: the mean camera height above that plane (--camera-height,
-    default 0.5 m) or the distance between two cameras (--baseline). A video's picked frames
-    are written to images/ beside the output. Nothing is written when too few images
-    register. Prints the output path on stdout. Details: docs/capture-poses.md.
+    COLMAP (pycolmap, CPU) finds the poses with one shared camera (a distorted one's images are
+    undistorted); up comes from the support plane in the sparse points (moved to z = 0), the
+    scale from one length you measured: the mean camera height above that plane
+    (--camera-height, default 0.5 m) or the distance between two cameras (--baseline). Nothing
+    is written when too few images register. Prints the output path. See docs/capture-poses.md.
 
     \b
     Example:
@@ -47,12 +48,11 @@ def capture_poses(output, json_path, overwrite, **values):
     """
     settings, output = options.settings_from(stage.Settings, values), options.output_path(output, overwrite)
     json_path = options.json_path_checked(json_path, overwrite)
-    if values["video"] is not None:
-        values["frames_dir"] = values["frames_dir"] or output.parent / "images"
-    flags = dict(export_transforms="--export-transforms", rerun_path="--rerun", frames_dir="--frames-dir")
-    for key, flag in flags.items():
-        if values[key] is not None:
-            values[key] = options.output_path(values[key], overwrite, flag)
+    for key, default in stage.default_folders(output, settings, values["video"]).items():
+        values[key] = values[key] or default
+    for key in ("export_transforms", "rerun_path", "frames_dir", "undistorted_dir", "keep_colmap"):
+        flag = "--" + key.removesuffix("_path").replace("_", "-")
+        values[key] = options.optional_output(values[key], overwrite, flag)
     summary = stage.run(output, settings, **values, json_path=json_path)
     click.echo(summary["message"], err=True)
     click.echo(str(output))

@@ -2,9 +2,11 @@
 
 `run_sfm` extracts SIFT features, matches them (exhaustively for small unordered sets,
 sequentially with a window for video frames), runs COLMAP's incremental mapper in a
-temporary workspace and keeps the largest reconstruction. All images share one PINHOLE or
-SIMPLE_PINHOLE camera, so the poses need no undistorted copies of the images: the files on
-disk are the images the cameras describe.
+temporary workspace and keeps the largest reconstruction. All images share one camera. With a
+pinhole model (SIMPLE_PINHOLE, PINHOLE) the files on disk are the images the cameras describe;
+with a distorted one (SIMPLE_RADIAL, RADIAL, OPENCV: phone photos) COLMAP estimates the lens
+distortion with the poses and its undistorter writes pinhole copies of the images (cropped to
+no blank pixels), which the returned cameras describe.
 
 The result is a `Cameras` in COLMAP's arbitrary frame (no scale, no gravity);
 `fignetctl.core.world_alignment` turns it into metres with z up.
@@ -26,6 +28,8 @@ from fignetctl.errors import FignetError, FormatError
 log = logging.getLogger(__name__)
 
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
+DISTORTED_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV")
+CAMERA_MODELS = PINHOLE_MODELS + DISTORTED_MODELS
 # Beyond this many images `matcher="auto"` matches sequentially instead of all pairs (measured on
 # the bundled capture's video: 40 frames register 40/40 with all pairs, 32/40 sequentially).
 AUTO_EXHAUSTIVE_MAX_IMAGES = 120
@@ -38,7 +42,8 @@ class SfmSettings:
     matcher: str = "auto"
     """'exhaustive' (all pairs), 'sequential' (neighbours in name order) or 'auto'."""
     camera_model: str = "SIMPLE_PINHOLE"
-    """One camera shared by all images: 'SIMPLE_PINHOLE' (f, cx, cy) or 'PINHOLE' (fx, fy, cx, cy)."""
+    """One camera shared by all images: 'SIMPLE_PINHOLE' (f, cx, cy), 'PINHOLE' (fx, fy, cx, cy),
+    or with lens distortion 'SIMPLE_RADIAL' (k), 'RADIAL' (k1, k2), 'OPENCV' (k1, k2, p1, p2)."""
     sequential_overlap: int = 10
     """Sequential matching: each image is matched with this many following images."""
     max_image_size: int = 1600
@@ -171,14 +176,29 @@ def _map(pycolmap, database, image_dir, workspace: Path, settings: SfmSettings) 
     return pycolmap.incremental_mapping(database, image_dir, output, options=options)
 
 
-def run_sfm(image_dir, names: list[str] | None = None, settings: SfmSettings = SfmSettings()) -> Cameras:
+def run_sfm(
+    image_dir,
+    names: list[str] | None = None,
+    settings: SfmSettings = SfmSettings(),
+    undistorted_dir=None,
+    keep_dir=None,
+) -> Cameras:
     """Poses of the images in `image_dir` (all, or `names`) in COLMAP's arbitrary frame.
 
-    Raises FignetError, having written nothing, when fewer than
-    `settings.min_registered_fraction` of the images (or fewer than 3) register.
+    With a distorted camera model the undistorted images are written into the existing folder
+    `undistorted_dir` (required then) and the cameras describe them. `keep_dir`, an existing
+    folder, receives the COLMAP workspace to open in COLMAP: database.db, sparse/0 (the model
+    of the images as given) and points.ply (the sparse points). Raises FignetError, having
+    written nothing, when fewer than `settings.min_registered_fraction` of the images (or
+    fewer than 3) register.
     """
     pycolmap = _import_pycolmap()
     image_dir = Path(image_dir)
+    if settings.camera_model not in CAMERA_MODELS:
+        raise FignetError(f"camera model {settings.camera_model!r}: choose one of {', '.join(CAMERA_MODELS)}")
+    distorted = settings.camera_model in DISTORTED_MODELS
+    if distorted and undistorted_dir is None:
+        raise ValueError("a distorted camera model needs a folder for the undistorted images")
     if names is None:
         names, _, _ = list_images(image_dir)
     matcher = settings.resolved_matcher(len(names))
@@ -196,7 +216,12 @@ def run_sfm(image_dir, names: list[str] | None = None, settings: SfmSettings = S
         best = max(reconstructions.values(), key=lambda r: r.num_reg_images(), default=None)
         registered = 0 if best is None else best.num_reg_images()
         _check_registered(registered, len(names), matcher, settings)
-        cameras = reconstruction_to_cameras(best, order=names)
+        if keep_dir is not None:
+            _keep_workspace(best, database, Path(keep_dir))
+        if distorted:
+            cameras = _undistort(pycolmap, best, image_dir, workspace, Path(undistorted_dir), names)
+        else:
+            cameras = reconstruction_to_cameras(best, order=names)
     log.info(
         "registered %d/%d images; %d sparse points; mean reprojection error %.2f px",
         registered,
@@ -204,6 +229,34 @@ def run_sfm(image_dir, names: list[str] | None = None, settings: SfmSettings = S
         len(cameras.points),
         best.compute_mean_reprojection_error(),
     )
+    return cameras
+
+
+def _keep_workspace(reconstruction, database: Path, folder: Path) -> None:
+    import shutil
+
+    shutil.copyfile(database, folder / "database.db")
+    (folder / "sparse" / "0").mkdir(parents=True)
+    reconstruction.write(folder / "sparse" / "0")
+    reconstruction.export_PLY(folder / "points.ply")
+
+
+def _undistort(pycolmap, reconstruction, image_dir: Path, workspace: Path, out: Path, names) -> Cameras:
+    """COLMAP's undistorter on the registered images: pinhole copies in `out`, their cameras."""
+    import shutil
+
+    model, undistorted = workspace / "distorted-model", workspace / "undistorted"
+    model.mkdir()
+    reconstruction.write(model)
+    camera = next(iter(reconstruction.cameras.values()))
+    log.info("lens: %s %s", camera.model_name, np.round(np.asarray(camera.params), 5).tolist())
+    try:
+        pycolmap.undistort_images(undistorted, model, image_dir)
+    except (RuntimeError, ValueError) as error:
+        raise FignetError(f"COLMAP could not undistort {image_dir}: {str(error).splitlines()[0]}") from None
+    cameras = reconstruction_to_cameras(pycolmap.Reconstruction(undistorted / "sparse"), order=names)
+    for name in cameras.image_names:
+        shutil.copyfile(undistorted / "images" / str(name), out / str(name))
     return cameras
 
 

@@ -25,8 +25,9 @@ class Settings:
     )
     camera_model: str = setting(
         "SIMPLE_PINHOLE",
-        "One camera shared by all images, without distortion.",
-        choices=("SIMPLE_PINHOLE", "PINHOLE"),
+        "One camera shared by all images; with lens distortion (SIMPLE_RADIAL, RADIAL, OPENCV: phone "
+        "photos) the images are undistorted into --undistorted-dir, which the cameras describe.",
+        choices=("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"),
     )
     gravity: str = setting(
         "auto",
@@ -64,6 +65,8 @@ def run(
     import_transforms=None,
     import_colmap=None,
     import_cameras=None,
+    undistorted_dir=None,
+    keep_colmap=None,
     export_transforms=None,
     rerun_path=None,
     json_path=None,
@@ -71,10 +74,13 @@ def run(
     """Camera poses of the folder `images`, of a `video` (its picked frames written to
     `frames_dir`, by default images/ beside `output`) or imported (`import_transforms`,
     `import_colmap` or `import_cameras`, checked against `images` when given), aligned to
-    metres with z up and written to `output` (cameras.npz); optionally a transforms.json
+    metres with z up and written to `output` (cameras.npz). With a distorted camera model the
+    undistorted images go to `undistorted_dir` (default_folders gives the defaults);
+    `keep_colmap` keeps COLMAP's workspace (database, sparse/0, points.ply). Optionally a transforms.json
     (`export_transforms`), a rerun recording and the --json summary. Returns the summary with
     a `message` (the success line, and the support planes found when there are several)."""
-    from fignetctl.core import sfm, world_alignment
+    from fignetctl.core import sfm, video_frames, world_alignment
+    from fignetctl.core.atomic import StagedDirectory
     from fignetctl.core.cameras import export_transforms_json, write_cameras
 
     check(settings)
@@ -102,26 +108,50 @@ def run(
         support_plane=settings.support_plane,
     )
 
-    staged = None
+    if given and not video_path and (keep_colmap or settings.camera_model in sfm.DISTORTED_MODELS):
+        raise FignetError("--camera-model and --keep-colmap apply to COLMAP runs, not to --import-*")
+    defaults = default_folders(output, settings, video_path)
+    frames_dir, undistorted_dir = (
+        frames_dir or defaults["frames_dir"],
+        undistorted_dir or defaults["undistorted_dir"],
+    )
+    source = images_dir
+    staged = {}  # folders committed once cameras.npz is written
     try:
-        if video_path is not None:
-            frames_dir = Path(frames_dir or output.parent / "images")
-            staged, cameras = _poses_from_video(video_path, frames_dir, settings.every, sfm_settings)
-            images_dir = frames_dir
-        elif given:
+        if given and video_path is None:
             cameras = _imported(import_transforms, import_colmap, import_cameras, images_dir)
         else:
-            cameras = sfm.run_sfm(images_dir, settings=sfm_settings)
+            names = None
+            if video_path is not None:
+                staged["frames"] = StagedDirectory(frames_dir, ("frame_*.png",))
+                picks = video_frames.pick_frames(video_path, staged["frames"].path, every=settings.every)
+                source, images_dir, names = staged["frames"].path, Path(frames_dir), [p.name for p in picks]
+            for key, folder, owned in (
+                ("undistorted", undistorted_dir, IMAGE_PATTERNS),
+                ("colmap", keep_colmap, ("database.db", "sparse", "points.ply")),
+            ):
+                if folder is not None:
+                    staged[key] = StagedDirectory(folder, owned)
+            cameras = sfm.run_sfm(
+                source,
+                names,
+                sfm_settings,
+                undistorted_dir=staged["undistorted"].path if "undistorted" in staged else None,
+                keep_dir=staged["colmap"].path if "colmap" in staged else None,
+            )
         aligned, alignment = world_alignment.align(cameras, alignment_settings)
         provenance = _provenance(images_dir, video_path, import_transforms, import_colmap, import_cameras)
         write_cameras(output, aligned, provenance)
-        if staged is not None:
-            staged.commit()
+        for folder in staged.values():
+            folder.commit()
     finally:
-        if staged is not None:
-            staged.discard()
+        for folder in staged.values():
+            folder.discard()
+    if "undistorted" in staged:
+        images_dir = Path(undistorted_dir)  # the images the cameras describe
     summary = {
         "output": str(output),
+        "images": None if images_dir is None else str(images_dir),
         "cameras": len(aligned),
         "sparse_points": len(aligned.points),
         "up_from": alignment.gravity_source,
@@ -137,7 +167,27 @@ def run(
         export_transforms_json(export_transforms, aligned, image_prefix=prefix)
     if rerun_path is not None:
         sfm.log_cameras_to_rerun(rerun_path, aligned, images_dir)
-    return {**summary, "message": _summary(aligned, alignment)}
+    message = _summary(aligned, alignment)
+    if "undistorted" in staged:
+        message += f"\nundistorted images ({aligned.width}x{aligned.height}, pinhole) in {images_dir}: fit the NeRF on them"
+    return {**summary, "message": message}
+
+
+IMAGE_PATTERNS = ("*.png", "*.jpg", "*.jpeg", "*.PNG", "*.JPG", "*.JPEG")
+
+
+def default_folders(output, settings: Settings, video=None) -> dict:
+    """Where a video's picked frames go (images/ beside `output`) and, with a distorted camera
+    model, the undistorted images (images_undistorted/ beside it); None where not written."""
+    from fignetctl.core.sfm import DISTORTED_MODELS
+
+    parent = Path(output).parent
+    return {
+        "frames_dir": parent / "images" if video is not None else None,
+        "undistorted_dir": parent / "images_undistorted"
+        if settings.camera_model in DISTORTED_MODELS
+        else None,
+    }
 
 
 def _check_baseline(baseline) -> None:
@@ -151,21 +201,6 @@ def _check_baseline(baseline) -> None:
         raise FignetError(f"baseline = {baseline!r}: give (image_a, image_b, metres)") from None
     if not (math.isfinite(metres) and metres > 0):
         raise FignetError(f"baseline = {baseline!r}: the length must be a finite number of metres above 0")
-
-
-def _poses_from_video(video_path, frames_dir, every, settings):
-    """Pick frames into a staged folder and run SfM on them; the folder is committed later."""
-    from fignetctl.core import sfm, video_frames
-    from fignetctl.core.atomic import StagedDirectory
-
-    staged = StagedDirectory(frames_dir, ("frame_*.png",))
-    try:
-        picks = video_frames.pick_frames(video_path, staged.path, every=every)
-        cameras = sfm.run_sfm(staged.path, [p.name for p in picks], settings)
-    except BaseException:
-        staged.discard()
-        raise
-    return staged, cameras
 
 
 def _imported(import_transforms, import_colmap, import_cameras, images_dir):

@@ -191,3 +191,31 @@ def test_help_has_an_example():
     result = CliRunner().invoke(cli, ["capture-poses", "--help"])
     assert result.exit_code == 0
     assert "fignetctl capture-poses --images" in result.output
+
+
+def test_a_distorted_camera_model_writes_undistorted_images_and_keeps_colmap(views, tmp_path):
+    from tests.core.synthetic_views import distort_image
+
+    folder, truth = views
+    distorted = tmp_path / "photos"
+    distorted.mkdir()
+    for name, K in zip(truth.image_names, truth.K):
+        cv2.imwrite(str(distorted / name), distort_image(cv2.imread(str(folder / name)), K, 0.15))
+    out = tmp_path / "out"
+    args = ("--images", distorted, "--camera-model", "SIMPLE_RADIAL", "--keep-colmap", out / "colmap")
+    result = run(*args, "-o", out / "cameras.npz", "--json", out / "poses.json")
+    assert result.exit_code == 0, result.output
+    cameras = read_cameras(out / "cameras.npz")
+    undistorted = out / "images_undistorted"
+    assert sorted(p.name for p in undistorted.iterdir()) == sorted(cameras.image_names)
+    assert cv2.imread(str(undistorted / cameras.image_names[0])).shape[:2] == (cameras.height, cameras.width)
+    assert (out / "colmap" / "sparse" / "0").is_dir() and (out / "colmap" / "points.ply").stat().st_size > 0
+    assert json.loads((out / "poses.json").read_text())["images"] == str(undistorted)
+    assert "undistorted images" in result.stderr
+    # A second run beside the first finds the default folder taken: refused without --overwrite.
+    assert_one_line_error(run(*args, "-o", out / "again.npz"), "--undistorted-dir", "--overwrite")
+    assert not (out / "again.npz").exists()
+    assert_one_line_error(
+        run("--import-cameras", out / "cameras.npz", "--camera-model", "OPENCV", "-o", tmp_path / "c.npz"),
+        "--camera-model",
+    )

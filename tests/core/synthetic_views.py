@@ -106,3 +106,29 @@ def render_views(out_dir, count=8, width=320, height=240, focal=280.0, seed=0, *
         cv2.imwrite(str(out_dir / name), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
         names.append(name)
     return Cameras(np.array(names), np.tile(K, (count, 1, 1)), c2w, width, height)
+
+
+def distort_image(image, K, k1: float) -> np.ndarray:
+    """The pinhole `image` (intrinsics K) as a lens with radial distortion k1 would record it
+    (OpenCV's model, k2 = p1 = p2 = 0): each pixel centre of the result is undistorted and the
+    pinhole image sampled there. k1 > 0 (pincushion) samples only inside the image."""
+    import cv2
+
+    height, width = image.shape[:2]
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    centres = np.stack([u + 0.5, v + 0.5], -1).reshape(-1, 1, 2)
+    source = cv2.undistortPoints(centres, K, np.array([k1, 0.0, 0.0, 0.0]), P=K).reshape(height, width, 2)
+    source = (source - 0.5).astype(np.float32)  # continuous coordinates -> pixel indices
+    return cv2.remap(image, source[..., 0], source[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+def resample(image, K, K_new, width: int, height: int) -> np.ndarray:
+    """A pinhole `image` (K) as seen by a pinhole camera K_new at the same pose."""
+    import cv2
+
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    x = (u + 0.5 - K_new[0, 2]) / K_new[0, 0]
+    y = (v + 0.5 - K_new[1, 2]) / K_new[1, 1]
+    map_u = (K[0, 0] * x + K[0, 2] - 0.5).astype(np.float32)
+    map_v = (K[1, 1] * y + K[1, 2] - 0.5).astype(np.float32)
+    return cv2.remap(image, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)

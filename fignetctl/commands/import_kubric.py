@@ -3,6 +3,7 @@
 import click
 
 from fignetctl.commands import options
+from fignetctl.stages import import_kubric as stage
 
 
 @click.command("import-kubric")
@@ -11,21 +12,12 @@ from fignetctl.commands import options
     "--assets",
     type=click.Path(file_okay=False),
     required=True,
-    help="Folder of the assets' collision meshes: <asset_id>/collision_geometry.obj (Kubric's layout), "
-    "<asset_id>.obj or <asset_id>/<asset_id>.obj.",
+    help="Folder of the assets' collision meshes (the layouts: docs/formats.md).",
 )
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Trajectory file (.h5).")
-@click.option("--floor-friction", type=options.FiniteFloatRange(0, 10), default=0.3, show_default=True)
-@click.option("--floor-restitution", type=options.FiniteFloatRange(0, 1), default=0.5, show_default=True)
-@click.option(
-    "--floor-size",
-    type=options.FiniteFloatRange(0.01, 1e4),
-    default=20.0,
-    show_default=True,
-    help="Side of the floor square (m).",
-)
+@options.settings_options(stage.Settings)
 @options.overwrite_option
-def import_kubric(metadata, assets, output, floor_friction, floor_restitution, floor_size, overwrite):
+def import_kubric(metadata, assets, output, overwrite, **settings):
     """Convert Kubric scenes (each a MOVi-style worker's metadata.json) into one trajectory file:
     one trajectory per scene, the instances with their asset's collision mesh, scale, mass,
     friction, restitution, poses and velocities at every frame, and a static floor at z = 0
@@ -37,16 +29,7 @@ def import_kubric(metadata, assets, output, floor_friction, floor_restitution, f
       fignetctl show movi.h5
       fignetctl evaluate movi.h5 -o metrics.json
     """
-    from fignetctl.core.kubric import kubric_file
-    from fignetctl.core.provenance import as_strings, stamp
-    from fignetctl.core.trajectory import write_trajectories
-
     path = options.output_path(output, overwrite)
-    data = kubric_file(list(metadata), assets, floor_friction, floor_restitution, floor_size / 2)
-    data.attrs.update(
-        as_strings(stamp(**{f"metadata_{i}": p for i, p in enumerate(metadata)}, assets=assets))
-    )
-    write_trajectories(path, data)
-    objects = sum(t.num_objects - 1 for t in data.trajectories.values())
-    click.echo(f"{len(data.trajectories)} scenes, {objects} objects, {1 / data.dt:g} frames/s", err=True)
+    summary = stage.run(metadata, assets, path, options.settings_from(stage.Settings, settings))
+    click.echo(summary["message"], err=True)
     click.echo(str(path))

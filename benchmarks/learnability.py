@@ -93,7 +93,9 @@ def main() -> None:
         trainer.run(until_step=step)
         fvu = fraction_unexplained(trainer.simulator.eval(), examples)
         trainer.simulator.train()
-        curve.append({"step": step, "seconds": time.perf_counter() - started, "fraction_unexplained": fvu["all"]})
+        curve.append(
+            {"step": step, "seconds": time.perf_counter() - started, "fraction_unexplained": fvu["all"]}
+        )
         print(json.dumps(curve[-1]), flush=True)
     seconds = time.perf_counter() - started
     simulator = trainer.simulator.eval()

@@ -12,7 +12,7 @@ import sys
 import click
 
 from fignetctl import __version__
-from fignetctl.errors import FignetError
+from fignetctl.errors import FignetError, SettingError
 
 # command name -> "module:function" under fignetctl.commands
 COMMANDS = {
@@ -58,6 +58,8 @@ class LazyGroup(click.Group):
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
+        except SettingError as error:
+            raise click.UsageError(as_flags(str(error))) from None
         except FignetError as error:
             raise click.ClickException(as_flags(str(error))) from None
         except MemoryError:

@@ -9,5 +9,10 @@ class FignetError(Exception):
     """A problem with the user's input or environment, described in one sentence."""
 
 
+class SettingError(FignetError):
+    """A setting (on the command line, an option) whose value the command cannot use; the CLI
+    reports it as a usage error (exit code 2), as for a value click itself refuses."""
+
+
 class FormatError(FignetError):
     """A file that does not follow its documented format."""

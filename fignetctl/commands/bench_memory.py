@@ -41,8 +41,6 @@ def bench_memory(data, model_paths, json_path, markdown_path, overwrite, **setti
       fignetctl bench-memory b-test.h5 --model fignet.pt --model fignet-star.pt
     """
     settings = options.settings_from(stage.Settings, settings)
-    if problem := stage.model_problem(settings, model_paths):
-        raise click.UsageError(problem)
     outputs = {
         f"{flag}_path": options.output_path(path, overwrite, f"--{flag}")
         for flag, path in (("json", json_path), ("markdown", markdown_path))

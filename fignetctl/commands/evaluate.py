@@ -53,7 +53,6 @@ def evaluate(data, model_path, output, overwrite, **settings):
       fignetctl evaluate test.h5 --with-guards --ceilings -o metrics.json
     """
     path = options.output_path(output, overwrite) if output else None
-    settings["device"] = options.resolve_device(settings["device"])
     metrics = stage.run(
         data, path, options.settings_from(stage.Settings, settings), model_path, options.progress
     )

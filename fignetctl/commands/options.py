@@ -122,17 +122,6 @@ def output_path(path, overwrite, param_name="--output"):
     return path
 
 
-def resolve_device(device):
-    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is an error."""
-    import torch
-
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        raise click.BadParameter("CUDA was asked for but torch sees no GPU", param_hint="--device")
-    return device
-
-
 PROGRESS_MODES = ("auto", "always", "never")
 LOG_INTERVAL_SECONDS = 30.0
 """How often a progress line is written when stderr is not a terminal (`--progress auto`)."""

@@ -38,8 +38,6 @@ def rerender(output, frames_dir, rerun_path, json_path, overwrite, **values):
       fignetctl rerender nerf.pt volume.npz rollout.h5 --orbit --radius 1.2 --mode duplicate -o orbit.mp4
     """
     settings = options.settings_from(stage.Settings, values)  # values keeps NERF, VOLUME, ROLLOUT, --cameras
-    if problem := stage.camera_problem(settings, values["cameras_path"]):
-        raise click.UsageError(problem)
     video = options.output_path(output, overwrite)
     json_path = options.json_path_checked(json_path, overwrite)
     frames = options.output_path(frames_dir or stage.default_frames_dir(video), overwrite, "--frames")

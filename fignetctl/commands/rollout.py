@@ -53,7 +53,6 @@ def rollout(scene, output, model, rerun_path, json_path, overwrite, **settings):
     """
     path, json_path = options.output_path(output, overwrite), options.json_path_checked(json_path, overwrite)
     rerun_path = options.optional_output(rerun_path, overwrite, "--rerun")
-    settings["device"] = options.resolve_device(settings["device"])
     settings = options.settings_from(stage.Settings, settings)
     stage.run(scene, path, settings, model, rerun_path, json_path, options.progress)
     click.echo(str(path))

@@ -49,8 +49,6 @@ def tradeoff(knobs, out_dir, overwrite, **values):
     """
     settings = options.settings_from(stage.Settings, values)  # values keeps the five input files
     knobs = stage.selected(knobs)
-    if problem := stage.input_problem(knobs, values["capture"], values["nerf"], values["nerf_curve"]):
-        raise click.UsageError(problem)
     for knob in knobs:
         for path in stage.output_files(out_dir, knob):
             options.output_path(path, overwrite, "--out-dir")

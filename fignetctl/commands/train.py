@@ -53,7 +53,6 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
         options.optional_output(log_csv, replace, "--log-csv"),
     )
     rerun_path = options.optional_output(rerun_path, replace, "--rerun")
-    settings["device"] = options.resolve_device(settings["device"])
     settings = options.settings_from(stage.Settings, settings)
     summary = stage.run(dataset, path, settings, init_from, log_csv, rerun_path, overwrite, options.progress)
     if summary["rank"] == 0:

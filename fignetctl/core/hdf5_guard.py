@@ -65,5 +65,7 @@ def _run_child(sending, reader, path, args):
     try:
         sending.send(result)
     except Exception as error:  # a value that cannot cross the pipe: a reader's bug, said in one line
-        sending.send(("error", f"{path}: not readable (its content cannot be returned: {type(error).__name__})"))
+        sending.send(
+            ("error", f"{path}: not readable (its content cannot be returned: {type(error).__name__})")
+        )
     sending.close()

@@ -22,7 +22,9 @@ import dataclasses
 import math
 import typing
 
-from fignetctl.errors import FignetError
+from fignetctl.errors import SettingError
+
+DEVICES = ("cpu", "cuda", "auto")
 
 
 def setting(default, help: str, *, low=None, high=None, low_open=False, choices=None, metavar=None):
@@ -40,7 +42,7 @@ def check(settings) -> None:
         if value is None or "help" not in meta:
             continue
         if meta["choices"] is not None and value not in meta["choices"]:
-            raise FignetError(
+            raise SettingError(
                 f"{field.name} = {value!r}: choose one of {', '.join(map(str, meta['choices']))}"
             )
         if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -50,7 +52,7 @@ def check(settings) -> None:
                 or (low is not None and (value <= low if meta["low_open"] else value < low))
                 or (high is not None and value > high)
             ):
-                raise FignetError(f"{field.name} = {value!r} is outside {_interval(meta)}")
+                raise SettingError(f"{field.name} = {value!r} is outside {_interval(meta)}")
 
 
 def _interval(meta) -> str:
@@ -85,3 +87,30 @@ def write_summary(json_path, summary: dict, provenance: dict) -> None:
 def _plain(value):
     """numpy scalars and arrays as json numbers and lists."""
     return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+def resolve_device(device: str) -> str:
+    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is refused."""
+    import torch
+
+    if device not in DEVICES:
+        raise SettingError(f"`device` {device!r}: choose one of {', '.join(DEVICES)}")
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise SettingError("`device`: CUDA was asked for but torch sees no GPU")
+    return device
+
+
+def no_progress(iterable=None, **kwargs):
+    """A progress bar that shows nothing: a stage's bar when its caller gives no `progress`."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, **{**kwargs, "disable": True})
+
+
+def to_stderr(line: str) -> None:
+    """A stage's note for the user, one line on stderr (when its caller gives no `report`)."""
+    import sys
+
+    print(line, file=sys.stderr, flush=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting, write_summary
+from fignetctl.errors import SettingError
+from fignetctl.stages import check, no_progress, resolve_device, setting, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,13 +53,12 @@ def run(
     to `json_path` and the markdown tables to `markdown_path`; returns the results with the
     tables as `markdown`."""
     from fignetctl.bench import memory as benchmark
-    from fignetctl.commands.options import resolve_device
     from fignetctl.core.atomic import atomic_path
     from fignetctl.core.provenance import stamp
 
     check(settings)
     if problem := model_problem(settings, model_paths):
-        raise FignetError(problem)
+        raise SettingError(problem)
     config = benchmark.BenchmarkConfig(
         samples=settings.samples,
         repeats=settings.repeats,
@@ -74,7 +73,9 @@ def run(
         simulators = benchmark.untrained_simulators(
             settings.size or "paper", settings.collision_radius, max_faces, settings.seed
         )
-    with _bars(progress)(total=settings.samples * len(data), unit="pair", desc="bench-memory") as bar:
+    with (progress or no_progress)(
+        total=settings.samples * len(data), unit="pair", desc="bench-memory"
+    ) as bar:
         result = benchmark.run_benchmark(data, simulators, config, on_pair=lambda: bar.update(1))
     provenance = stamp(
         **{f"data_{i}": p for i, p in enumerate(data)},
@@ -87,14 +88,3 @@ def run(
         with atomic_path(markdown_path) as tmp:
             tmp.write_text(report)
     return {**result, "markdown": report}
-
-
-def _bars(progress):
-    """`progress` (a tqdm-like factory, as fignetctl.commands.options.progress) or one showing nothing."""
-    if progress is not None:
-        return progress
-    import functools
-
-    from tqdm import tqdm
-
-    return functools.partial(tqdm, disable=True)

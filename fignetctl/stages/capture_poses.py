@@ -6,7 +6,7 @@ import dataclasses
 import math
 from pathlib import Path
 
-from fignetctl.errors import FignetError
+from fignetctl.errors import SettingError
 from fignetctl.stages import check, setting, write_summary
 
 SOURCES_ERROR = (
@@ -92,9 +92,9 @@ def run(
         path for path in (video_path, import_transforms, import_colmap, import_cameras) if path is not None
     ]
     if len(given) > 1 or (video_path is not None and images_dir is not None) or not (given or images_dir):
-        raise FignetError(SOURCES_ERROR)
+        raise SettingError(SOURCES_ERROR)
     if settings.camera_height is not None and settings.baseline is not None:
-        raise FignetError("--camera-height and --baseline both set the scale; give one")
+        raise SettingError("--camera-height and --baseline both set the scale; give one")
     _check_baseline(settings.baseline)
     output = Path(output)
     sfm_settings = sfm.SfmSettings(
@@ -109,7 +109,7 @@ def run(
     )
 
     if given and not video_path and (keep_colmap or settings.camera_model in sfm.DISTORTED_MODELS):
-        raise FignetError("--camera-model and --keep-colmap apply to COLMAP runs, not to --import-*")
+        raise SettingError("--camera-model and --keep-colmap apply to COLMAP runs, not to --import-*")
     defaults = default_folders(output, settings, video_path)
     frames_dir, undistorted_dir = (
         frames_dir or defaults["frames_dir"],
@@ -198,9 +198,9 @@ def _check_baseline(baseline) -> None:
         _, _, metres = baseline
         metres = float(metres)
     except (TypeError, ValueError):
-        raise FignetError(f"baseline = {baseline!r}: give (image_a, image_b, metres)") from None
+        raise SettingError(f"baseline = {baseline!r}: give (image_a, image_b, metres)") from None
     if not (math.isfinite(metres) and metres > 0):
-        raise FignetError(f"baseline = {baseline!r}: the length must be a finite number of metres above 0")
+        raise SettingError(f"baseline = {baseline!r}: the length must be a finite number of metres above 0")
 
 
 def _imported(import_transforms, import_colmap, import_cameras, images_dir):

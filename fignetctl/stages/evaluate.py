@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from fignetctl.stages import check, setting
-from fignetctl.stages.rollout import no_progress, resolve_device
+from fignetctl.stages import check, no_progress, resolve_device, setting
 
 
 @dataclasses.dataclass(frozen=True)

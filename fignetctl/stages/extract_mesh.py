@@ -6,9 +6,8 @@ import dataclasses
 import math
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting, write_summary
-from fignetctl.stages.fit_nerf import DEVICES, resolve_device
+from fignetctl.errors import SettingError
+from fignetctl.stages import DEVICES, check, resolve_device, setting, write_summary
 
 OUTPUTS = ("object.obj", "environment.obj", "volume.npz", "masks")
 """The files written into the output folder (with masks/)."""
@@ -65,7 +64,7 @@ def run(
     check(settings)
     given = [bool(settings.prompt or prompts), bool(masks), settings.box is not None]
     if sum(given) != 1:
-        raise FignetError("give exactly one of --prompt/--prompts, --masks or --box")
+        raise SettingError("give exactly one of --prompt/--prompts, --masks or --box")
     _check_box(settings.box)
     out = Path(output)
     extraction_settings = ExtractionSettings(
@@ -105,7 +104,7 @@ def _check_box(box) -> None:
     except (TypeError, ValueError):
         numbers = []
     if len(numbers) != 6 or not all(math.isfinite(x) and abs(x) <= 1e6 for x in numbers):
-        raise FignetError(f"box = {box!r}: give 6 finite numbers within ±1e6 (x0, y0, z0, x1, y1, z1)")
+        raise SettingError(f"box = {box!r}: give 6 finite numbers within ±1e6 (x0, y0, z0, x1, y1, z1)")
 
 
 def _message(summary) -> str:

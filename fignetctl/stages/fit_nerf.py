@@ -5,10 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting, write_summary
-
-DEVICES = ("cpu", "cuda", "auto")
+from fignetctl.errors import SettingError
+from fignetctl.stages import DEVICES, check, no_progress, resolve_device, setting, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +62,7 @@ def run(
 
     check(settings)
     if settings.resume and overwrite:
-        raise FignetError("--resume continues --output, --overwrite replaces it: give one")
+        raise SettingError("--resume continues --output, --overwrite replaces it: give one")
     path = Path(output)
     device = resolve_device(settings.device)
     if device == "cpu":
@@ -82,8 +80,8 @@ def run(
     resume_from = path if settings.resume and path.exists() else None
     trainer = make_trainer(images_dir, camera_set, config, device, resume_from, data_hash)
     trainer.provenance = stamp(images=images_dir, cameras=cameras)
-    with _bar(
-        progress, total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
+    with (progress or no_progress)(
+        total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
     ) as bar:
 
         def on_step(record):
@@ -103,26 +101,3 @@ def run(
     summary = {"output": str(path), **metrics}
     write_summary(json_path, summary, trainer.provenance)
     return {**summary, "message": message}
-
-
-def resolve_device(device: str) -> str:
-    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is refused (in
-    the words of the --device option's check). Shared by the stages that run torch."""
-    import torch
-
-    if device not in DEVICES:
-        raise FignetError(f"device = {device!r}: choose one of {', '.join(DEVICES)}")
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        raise FignetError("Invalid value for --device: CUDA was asked for but torch sees no GPU")
-    return device
-
-
-def _bar(progress, **kwargs):
-    """A progress bar from the `progress` factory, or a silent tqdm."""
-    if progress is not None:
-        return progress(**kwargs)
-    from tqdm import tqdm
-
-    return tqdm(disable=True, **kwargs)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import dataclasses
 import re
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting
-from fignetctl.stages.rollout import to_stderr
+from fignetctl.errors import SettingError
+from fignetctl.stages import check, setting, to_stderr
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +33,7 @@ def parse_shard(text) -> tuple[int, int]:
     """'i/n' -> (i, n) with 0 <= i < n; FignetError otherwise."""
     match = re.fullmatch(r"\s*(\d+)\s*/\s*(\d+)\s*", text or "")
     if not match or not int(match[1]) < int(match[2]):
-        raise FignetError(f"{text!r} is not a shard 'i/n' with 0 <= i < n, e.g. 0/4")
+        raise SettingError(f"{text!r} is not a shard 'i/n' with 0 <= i < n, e.g. 0/4")
     return int(match[1]), int(match[2])
 
 

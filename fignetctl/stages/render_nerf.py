@@ -5,9 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting
-from fignetctl.stages.fit_nerf import DEVICES, resolve_device
+from fignetctl.errors import SettingError
+from fignetctl.stages import DEVICES, check, resolve_device, setting
 
 MAX_RENDER_SIDE = 4096  # pixels: as render-views' largest image
 
@@ -34,8 +33,8 @@ def run(nerf, cameras, output, settings: Settings = Settings()) -> dict:
     scale = settings.scale
     camera_set = read_cameras(cameras)
     if scale is not None and max(camera_set.width, camera_set.height) * scale > MAX_RENDER_SIDE:
-        raise FignetError(
-            f"Invalid value for --scale: {scale:g} x {camera_set.width}x{camera_set.height} is over "
+        raise SettingError(
+            f"--scale: {scale:g} x {camera_set.width}x{camera_set.height} is over "
             f"{MAX_RENDER_SIDE} pixels on a side; lower it"
         )
     model = load_nerf(nerf, device=resolve_device(settings.device))
@@ -52,12 +51,8 @@ def _parse_views(text, count, model):
     try:
         indices = [int(part) for part in text.split(",") if part.strip()]
     except ValueError:
-        raise FignetError(
-            f"Invalid value for --views: {text!r} is not a comma-separated list of integers"
-        ) from None
+        raise SettingError(f"--views: {text!r} is not a comma-separated list of integers") from None
     bad = [i for i in indices if not 0 <= i < count]
     if bad or not indices:
-        raise FignetError(
-            f"Invalid value for --views: view {bad[0] if bad else text!r} is not in 0..{count - 1}"
-        )
+        raise SettingError(f"--views: view {bad[0] if bad else text!r} is not in 0..{count - 1}")
     return indices

@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting, write_summary
+from fignetctl.errors import SettingError
+from fignetctl.stages import check, resolve_device, setting, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +80,6 @@ def run(
     `video`, its PNG frames in the folder `frames` (default: `default_frames_dir`), optionally a
     rerun recording and the json summary. Returns the summary (frames, size, timings) with a
     one-line `message`."""
-    from fignetctl.commands.options import resolve_device
     from fignetctl.core import rerender as core
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.provenance import stamp
@@ -89,7 +88,7 @@ def run(
 
     check(settings)
     if problem := camera_problem(settings, cameras_path):
-        raise FignetError(problem)
+        raise SettingError(problem)
     video = Path(video)
     frames = Path(frames) if frames else default_frames_dir(video)
     volume = read_volume(volume_path)
@@ -116,7 +115,6 @@ def run(
 
 def _cameras(cameras_path, settings: Settings, volume, count):
     """One camera (K, c2w, width, height) per output frame."""
-    import click
     import numpy as np
 
     from fignetctl.core import pinhole
@@ -125,8 +123,8 @@ def _cameras(cameras_path, settings: Settings, volume, count):
     index, width, height = settings.camera, settings.width, settings.height
     cameras = read_cameras(cameras_path) if cameras_path else None
     if cameras is not None and index is not None and not -len(cameras) <= index < len(cameras):
-        raise click.BadParameter(
-            f"camera {index} is out of range ({cameras_path} has {len(cameras)} views)", param_hint="--camera"
+        raise SettingError(
+            f"--camera: camera {index} is out of range ({cameras_path} has {len(cameras)} views)"
         )
     native = (cameras.width, cameras.height) if cameras is not None else (320, 240)
     width = width or (native[0] if height is None else max(1, round(native[0] * height / native[1])))

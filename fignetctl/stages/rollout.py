@@ -5,8 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting, write_summary
+from fignetctl.errors import FignetError, SettingError
+from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,7 +42,7 @@ def parse_sim_scale(value) -> float | str:
     except (TypeError, ValueError):
         scale = float("nan")
     if not (math.isfinite(scale) and 1e-3 <= scale <= 1e3):
-        raise FignetError(f"{value!r} is not 'auto' or a scale between 0.001 and 1000")
+        raise SettingError(f"{value!r} is not 'auto' or a scale between 0.001 and 1000")
     return scale
 
 
@@ -114,29 +114,3 @@ def _write(result, path, rerun_path):
         from fignetctl.core.viz import log_trajectory_to_rerun
 
         log_trajectory_to_rerun(result, next(iter(result.trajectories)), rerun_path)
-
-
-def resolve_device(device: str) -> str:
-    """'auto' -> 'cuda' when torch sees a GPU, else 'cpu'; 'cuda' without a GPU is refused.
-    (The device step of the train, rollout and evaluate stages.)"""
-    import torch
-
-    if device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if device == "cuda" and not torch.cuda.is_available():
-        raise FignetError("--device: CUDA was asked for but torch sees no GPU")
-    return device
-
-
-def to_stderr(line: str) -> None:
-    """A stage's note for the user, one line on stderr (where a caller gives no `report`)."""
-    import sys
-
-    print(line, file=sys.stderr, flush=True)
-
-
-def no_progress(iterable=None, **kwargs):
-    """A progress bar that shows nothing (a stage's default when its caller gives none)."""
-    from tqdm import tqdm
-
-    return tqdm(iterable, **{**kwargs, "disable": True})

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from fignetctl.errors import SettingError
 from fignetctl.stages import check, setting, write_summary
 
 
@@ -52,8 +53,6 @@ def run(
 
 def trajectory_key(data, trajectory_id):
     """The id asked for, matched exactly or as a number ("3" finds "00003"); the first by default."""
-    import click
-
     ids = list(data.trajectories)
     if trajectory_id is None:
         return ids[0]
@@ -64,6 +63,4 @@ def trajectory_key(data, trajectory_id):
             if key.isascii() and key.isdecimal() and int(key) == int(trajectory_id):
                 return key
     known = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
-    raise click.BadParameter(
-        f"no trajectory {trajectory_id!r} (the file has {known})", param_hint="--trajectory"
-    )
+    raise SettingError(f"--trajectory: no trajectory {trajectory_id!r} (the file has {known})")

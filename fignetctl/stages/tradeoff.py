@@ -6,8 +6,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting
+from fignetctl.errors import SettingError
+from fignetctl.stages import check, no_progress, resolve_device, setting
 
 KNOB_CHOICES = (
     "decimation",
@@ -86,12 +86,11 @@ def run(
     ground truth not given is made in `out_dir` and kept there. `echo(line)`, when given, gets
     each json's path as it is written. Returns {"outputs": {knob: its json path}}."""
     from fignetctl.bench import tradeoff as core
-    from fignetctl.commands.options import resolve_device
 
     check(settings)
     knobs, out_dir = selected(knobs), Path(out_dir)
     if problem := input_problem(knobs, capture, nerf, nerf_curve):
-        raise FignetError(problem)
+        raise SettingError(problem)
     base = core.QUICK if settings.quick else core.TradeoffConfig()
     given = {name: getattr(settings, name) for name in ("trajectories", "steps", "repeats", "train_steps")}
     config = dataclasses.replace(
@@ -108,7 +107,7 @@ def run(
         "nerf": nerf,
         "nerf_curve": nerf_curve,
     }
-    bars = _bars(progress)
+    bars = progress or no_progress
     inputs.update(ground_truth_files(knobs, inputs, out_dir, config, bars))
     written = {}
     for knob in knobs:
@@ -165,14 +164,3 @@ def run_knob(core, knob, inputs, config, on_progress):
         "device": core.sweep_device,
     }[knob]
     return sweep(inputs["data"], config, on_progress)
-
-
-def _bars(progress):
-    """`progress` (a tqdm-like factory, as fignetctl.commands.options.progress) or one showing nothing."""
-    if progress is not None:
-        return progress
-    import functools
-
-    from tqdm import tqdm
-
-    return functools.partial(tqdm, disable=True)

@@ -6,9 +6,8 @@ import dataclasses
 import math
 from pathlib import Path
 
-from fignetctl.errors import FignetError
-from fignetctl.stages import check, setting
-from fignetctl.stages.rollout import no_progress, resolve_device
+from fignetctl.errors import SettingError
+from fignetctl.stages import check, no_progress, resolve_device, setting
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,11 +108,11 @@ def run(
     check(settings)
     rates = settings.learning_rate
     if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
-        raise FignetError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
+        raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
     if settings.resume and overwrite:
-        raise FignetError("--resume continues --output, --overwrite replaces it: give one")
+        raise SettingError("--resume continues --output, --overwrite replaces it: give one")
     if settings.resume and init_from:
-        raise FignetError("--resume continues --output, --init-from starts a new run: give one")
+        raise SettingError("--resume continues --output, --init-from starts a new run: give one")
     output, device = Path(output), resolve_device(settings.device)
     simulator_config = simulator_config_for(
         settings.model,

@@ -25,9 +25,7 @@ def load_model(path=None, device="cpu"):
     if path is None or path in BUNDLED:
         path = bundled_model_path(path or DEFAULT_BUNDLED)
         if not path.is_file():
-            raise FignetError(
-                f"no bundled model at {path}; pass a `model` file (from `fignetctl train`)"
-            )
+            raise FignetError(f"no bundled model at {path}; pass a `model` file (from `fignetctl train`)")
     return load_checkpoint(path, device=device)
 
 
@@ -124,7 +122,9 @@ def warn_untrained_properties(simulator, trajectories) -> None:
         ):
             found.setdefault(sentence)
     for sentence in found:
-        log.warning("%s: the rollout extrapolates (see the active and passive properties of build-graph)", sentence)
+        log.warning(
+            "%s: the rollout extrapolates (see the active and passive properties of build-graph)", sentence
+        )
 
 
 def rollout_result(

@@ -25,7 +25,7 @@ from pathlib import Path
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+from fignetctl.core.model.training import TrainingSettings, make_trainer, simulator_config_for
 
 # name: (state, static receivers, batch builders, precision, torch threads, processes)
 SETTINGS = {
@@ -51,7 +51,7 @@ def measure_here(path, setting, args) -> float:
     simulator = simulator_config_for(
         "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
     )
-    config = TrainingConfig(
+    config = TrainingSettings(
         steps=args.warmup + args.steps,
         batch_size=args.batch_size,
         loss="mse",

@@ -21,7 +21,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
 import tests.stability.test_learned_rollouts as cases  # noqa: E402
-from fignetctl.core.model.runs import load_model, rollout_file  # noqa: E402
+from fignetctl.core.model.apply import load_model, rollout_file  # noqa: E402
 from fignetctl.core.trajectory import read_trajectories, write_trajectories  # noqa: E402
 
 PAPER = {"dynamic": (0.5, 0.5), "static": (0.5, 0.3)}  # friction, restitution (paper's FIGNet* table)

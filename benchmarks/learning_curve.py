@@ -25,8 +25,8 @@ import os
 import torch
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.model.apply import evaluate_file
 from fignetctl.core.model.checkpoint import load_checkpoint, read_checkpoint_payload
-from fignetctl.core.model.runs import evaluate_file
 
 
 def training_history(path):

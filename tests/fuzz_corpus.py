@@ -100,6 +100,8 @@ class Case:
 
 def base_files(folder: Path) -> dict:
     """Valid inputs of every kind in `folder`: slot -> path."""
+    import cv2
+
     from fignetctl.core.cameras import Cameras, export_transforms_json, write_cameras
     from fignetctl.core.model.checkpoint import bundled_model_path
     from fignetctl.core.nerf import save_nerf
@@ -108,8 +110,6 @@ def base_files(folder: Path) -> dict:
     from fignetctl.core.trajectory import write_trajectories
     from tests.commands.test_rerender import box_rollout
     from tests.core.test_rerender import BOX_LOWER, BOX_UPPER, REST, solid_field, top_camera, write_volume
-
-    import cv2
 
     folder.mkdir(parents=True, exist_ok=True)
     save_nerf(folder / "nerf.pt", solid_field(resolution=17))

@@ -6,7 +6,7 @@ import pytest
 from click.testing import CliRunner
 
 from fignetctl.cli import COMMANDS, cli
-from fignetctl.core.documents import require_regular_file
+from fignetctl.core.containers import require_regular_file
 from fignetctl.errors import FormatError
 
 

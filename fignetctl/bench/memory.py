@@ -84,7 +84,7 @@ MEMORY_METHOD = {
 
 
 @dataclasses.dataclass(frozen=True)
-class BenchmarkConfig:
+class BenchmarkSettings:
     """How many measurements, and where."""
 
     samples: int = 10
@@ -191,11 +191,11 @@ def sample_frames(scenes, count, rng, collision_radius) -> list[tuple[int, int, 
 
 def make_workload(simulator, scene, frame, noise_generator, device) -> Workload:
     """Build the step's graph and a noisy training example for one model and pair."""
-    from fignetctl.core.model.training import TrainingConfig, training_example
+    from fignetctl.core.model.training import TrainingSettings, training_example
 
     positions, quaternions = scene.positions[frame - 1 : frame + 2], scene.quaternions[frame - 1 : frame + 2]
     graph = build_scene_graph(scene.geometry, positions, quaternions, simulator.config.graph).graph
-    example, targets = training_example(simulator.config, scene, frame, noise_generator, TrainingConfig())
+    example, targets = training_example(simulator.config, scene, frame, noise_generator, TrainingSettings())
     rows = torch.arange(example.num_dynamic_vertex_nodes, device=device)
     return Workload(simulator, scene, frame, graph, example.graph, rows, targets)
 
@@ -270,7 +270,7 @@ def timed_ms(function, synchronize) -> float:
     return 1e3 * (time.perf_counter() - start)
 
 
-def time_phases(workloads: dict, config: BenchmarkConfig) -> dict:
+def time_phases(workloads: dict, config: BenchmarkSettings) -> dict:
     """{label: Workload} -> {label: {phase: [ms, ...]}}; models take turns within every round."""
     synchronize = synchronizer(config.device)
     functions = {label: phases(workload, config.device) for label, workload in workloads.items()}
@@ -343,7 +343,7 @@ def edge_counts(graph: MultiGraph) -> dict:
     return counts
 
 
-def measure_pair(workloads: dict, config: BenchmarkConfig) -> dict:
+def measure_pair(workloads: dict, config: BenchmarkSettings) -> dict:
     """{label: Workload} of one pair -> {label: edges, memory, times}; timing first (warm)."""
     times = time_phases(workloads, config)
     results = {}
@@ -416,7 +416,7 @@ def pair_workloads(simulators: dict, scenes: dict, scene_index, frame, noise_see
     return workloads
 
 
-def benchmark_file(path, simulators: dict, config: BenchmarkConfig, on_pair=None) -> dict:
+def benchmark_file(path, simulators: dict, config: BenchmarkSettings, on_pair=None) -> dict:
     """One data file: sampled pairs, each model's summary, and the FIGNet*/FIGNet ratios."""
     scenes = scenes_by_mesh_settings(path, simulators)
     first = next(iter(simulators.values()))
@@ -464,7 +464,7 @@ def file_result(path, scenes, pairs, simulators, per_pair) -> dict:
     }
 
 
-def run_benchmark(data_paths, simulators: dict, config: BenchmarkConfig, on_pair=None) -> dict:
+def run_benchmark(data_paths, simulators: dict, config: BenchmarkSettings, on_pair=None) -> dict:
     """Data files and {label: simulator} -> the full result (json-ready dict)."""
     simulators = {label: s.to(config.device) for label, s in simulators.items()}
     with torch_threads(config.threads):

@@ -58,7 +58,7 @@ NO_GPU = "no GPU here"
 
 
 @dataclasses.dataclass(frozen=True)
-class TradeoffConfig:
+class TradeoffSettings:
     """How much each sweep measures."""
 
     trajectories: int = 4
@@ -79,7 +79,9 @@ class TradeoffConfig:
     """Fewer settings (the first and a middle one), for tests and smoke runs."""
 
 
-QUICK = TradeoffConfig(trajectories=1, steps=2, repeats=1, train_steps=2, frames_per_trajectory=2, quick=True)
+QUICK = TradeoffSettings(
+    trajectories=1, steps=2, repeats=1, train_steps=2, frames_per_trajectory=2, quick=True
+)
 
 
 def mark_pareto(result: dict) -> dict:
@@ -393,8 +395,8 @@ def mean_dynamic_faces(scenes) -> float:
     return float(np.mean(np.concatenate(counts)))
 
 
-def sweep_decimation(data_path, config: TradeoffConfig, on_progress=None, faces=None) -> dict:
-    from fignetctl.core.model.runs import load_model
+def sweep_decimation(data_path, config: TradeoffSettings, on_progress=None, faces=None) -> dict:
+    from fignetctl.core.model.apply import load_model
 
     simulator = load_model(None, config.device).eval()
     faces = faces or ((DECIMATION_FACES[2], None) if config.quick else DECIMATION_FACES)
@@ -432,9 +434,9 @@ def sweep_decimation(data_path, config: TradeoffConfig, on_progress=None, faces=
     )
 
 
-def sweep_architecture(data_path, config: TradeoffConfig, on_progress=None) -> dict:
+def sweep_architecture(data_path, config: TradeoffSettings, on_progress=None) -> dict:
     from fignetctl.bench import memory as benchmark
-    from fignetctl.core.model.runs import load_model
+    from fignetctl.core.model.apply import load_model
 
     simulators = {
         "FIGNet": load_model("fignet-movi-b", config.device).eval(),
@@ -448,7 +450,7 @@ def sweep_architecture(data_path, config: TradeoffConfig, on_progress=None) -> d
         bench = benchmark.run_benchmark(
             [data_path],
             simulators,
-            benchmark.BenchmarkConfig(
+            benchmark.BenchmarkSettings(
                 samples=config.trajectories,
                 repeats=config.repeats,
                 seed=config.seed,
@@ -498,8 +500,8 @@ def face_face_edges(simulator, scenes, every=5) -> list[int]:
     return counts
 
 
-def sweep_collision_radius(data_path, config: TradeoffConfig, on_progress=None, radii=None) -> dict:
-    from fignetctl.core.model.runs import load_model
+def sweep_collision_radius(data_path, config: TradeoffSettings, on_progress=None, radii=None) -> dict:
+    from fignetctl.core.model.apply import load_model
 
     base = load_model(None, config.device).eval()
     radii = radii or (COLLISION_RADII[2:4] if config.quick else COLLISION_RADII)
@@ -551,13 +553,13 @@ def one_step_errors(simulator, scenes, frames_per_trajectory, seed) -> tuple[lis
 
 
 def sweep_message_passing(
-    train_path, test_path, config: TradeoffConfig, on_progress=None, sizes=None
+    train_path, test_path, config: TradeoffSettings, on_progress=None, sizes=None
 ) -> dict:
     from fignetctl.core.model.network import NetworkConfig
-    from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+    from fignetctl.core.model.training import TrainingSettings, make_trainer, simulator_config_for
 
     sizes = sizes or (NETWORK_SIZES[:2] if config.quick else NETWORK_SIZES)
-    training = TrainingConfig(
+    training = TrainingSettings(
         steps=config.train_steps,
         batch_size=2,
         normalizer_accumulation_steps=config.train_steps,
@@ -646,7 +648,7 @@ def capture_objects(capture) -> list:
 
 
 def sweep_marching_cubes(
-    capture, nerf_path, config: TradeoffConfig, on_progress=None, resolutions=None
+    capture, nerf_path, config: TradeoffSettings, on_progress=None, resolutions=None
 ) -> dict:
     from fignetctl.core.mesh_extraction import ExtractionSettings, extract_object, padded_box
     from fignetctl.core.nerf.io import load_nerf
@@ -699,10 +701,10 @@ def sweep_marching_cubes(
     )
 
 
-def sweep_nerf_steps(curve_path, config: TradeoffConfig) -> dict:
+def sweep_nerf_steps(curve_path, config: TradeoffSettings) -> dict:
     """Points of a fit-nerf learning curve (benchmarks/bench_nerf.py's json): held-out PSNR
     against training seconds; one run, so each point is n=1."""
-    from fignetctl.core.documents import require_regular_file
+    from fignetctl.core.containers import require_regular_file
 
     try:
         data = json.loads(require_regular_file(curve_path).read_text())
@@ -756,10 +758,10 @@ def _nerf_curve_points(data: dict) -> list:
     return points
 
 
-def sweep_device(data_path, config: TradeoffConfig, on_progress=None) -> dict:
+def sweep_device(data_path, config: TradeoffSettings, on_progress=None) -> dict:
     import torch
 
-    from fignetctl.core.model.runs import load_model
+    from fignetctl.core.model.apply import load_model
 
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     points = []

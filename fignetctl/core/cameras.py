@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import read_npz_document, require_regular_file
+from fignetctl.core.containers import read_npz_document, require_regular_file
 from fignetctl.core.media import read_image
 from fignetctl.core.pinhole import Camera
 from fignetctl.core.provenance import as_strings, stamp

@@ -38,8 +38,8 @@ MASS_RTOL = 1e-4  # stored masses are float32; a larger mismatch means another a
 # ----------------------------------------------------------------------------- the scene
 
 
-def generator_config(data: TrajectoryFile) -> movi.MoviConfig:
-    """The MoviConfig in the file's `config` attribute (make-dataset writes it), checked against
+def generator_config(data: TrajectoryFile) -> movi.MoviSettings:
+    """The MoviSettings in the file's `config` attribute (make-dataset writes it), checked against
     the file's frame time; FignetError for a file without it."""
     if "config" not in data.attrs:
         raise FignetError(
@@ -53,7 +53,7 @@ def generator_config(data: TrajectoryFile) -> movi.MoviConfig:
     return config
 
 
-def generator_assets(data: TrajectoryFile, config: movi.MoviConfig) -> list:
+def generator_assets(data: TrajectoryFile, config: movi.MoviSettings) -> list:
     """The preset's ShapeAssets of every mesh the file's trajectories use (the floor aside)."""
     from fignetctl.core.shapes import load_shapes
 
@@ -74,7 +74,7 @@ def check_assets_match_file(assets, data: TrajectoryFile) -> None:
             )
 
 
-def object_specs(trajectory, config: movi.MoviConfig, asset_index: dict, simulator) -> list:
+def object_specs(trajectory, config: movi.MoviSettings, asset_index: dict, simulator) -> list:
     """One ObjectSpec per dynamic object (objects 1..O-1), checked against the stored masses.
 
     asset_index : mesh name -> index into the simulator's shapes
@@ -95,7 +95,7 @@ def object_specs(trajectory, config: movi.MoviConfig, asset_index: dict, simulat
     return specs
 
 
-def check_floor(trajectory, config: movi.MoviConfig) -> None:
+def check_floor(trajectory, config: movi.MoviSettings) -> None:
     """FignetError unless object 0 is the config's floor and every other object is dynamic."""
     layout = [True] + [False] * (trajectory.num_objects - 1)
     if str(trajectory.mesh_names[0]) != movi.FLOOR_NAME or trajectory.static.tolist() != layout:
@@ -107,7 +107,7 @@ def check_floor(trajectory, config: movi.MoviConfig) -> None:
         raise FignetError("the floor's friction and restitution are not the generator config's")
 
 
-def stored_material(config: movi.MoviConfig, friction, restitution) -> movi.Material:
+def stored_material(config: movi.MoviSettings, friction, restitution) -> movi.Material:
     """The config's material with this (float32-stored) friction and restitution."""
     stored = (np.float32(friction), np.float32(restitution))
     for material in config.materials:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.documents import require_regular_file
+from fignetctl.core.containers import require_regular_file
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
 from fignetctl.errors import FormatError
 

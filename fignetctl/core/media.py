@@ -22,7 +22,7 @@ def read_image(path, flags=None, hint: str = "") -> np.ndarray:
     'decompression bomb': a small file whose header claims a huge image)."""
     import cv2
 
-    from fignetctl.core.documents import require_regular_file
+    from fignetctl.core.containers import require_regular_file
 
     path = require_regular_file(path, "image")
     try:

@@ -6,7 +6,7 @@ U((-4,-4,0), (4,4,0)) - (x, y, 0) toward the centre, onto a large static floor) 
 PyBullet settings (240 Hz, gravity (0, 0, -10), `restitutionVelocityThreshold=0,
 warmStartingFactor=0, useSplitImpulse=True, contactSlop=0, enableConeFriction=False,
 deterministicOverlappingPairs=True`, maximal-coordinate bodies, `contactProcessingThreshold=0`).
-Where we differ from Kubric, the setting is named in `MoviConfig` and docs/make-dataset.md.
+Where we differ from Kubric, the setting is named in `MoviSettings` and docs/make-dataset.md.
 
 Each object collides as the compound of its asset's convex parts, scaled. The body's origin is
 the asset's centre of mass; its inertia is the mesh's own (principal moments, set through
@@ -75,7 +75,7 @@ MOVI_C_MATERIAL = Material("default", friction=0.5, restitution=0.5, density=1.0
 
 
 @dataclasses.dataclass(frozen=True)
-class MoviConfig:
+class MoviSettings:
     """Settings of one MOVi-style dataset; written as json into every output file."""
 
     preset: str = "movi-b"
@@ -144,8 +144,8 @@ class MoviConfig:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
 
-def config_from_json(text: str) -> MoviConfig:
-    """The MoviConfig that `MoviConfig.to_json` wrote (a make-dataset file's `config` attribute).
+def config_from_json(text: str) -> MoviSettings:
+    """The MoviSettings that `MoviSettings.to_json` wrote (a make-dataset file's `config` attribute).
 
     Raises FignetError for text that is not such json or names settings this version lacks.
     """
@@ -157,19 +157,19 @@ def config_from_json(text: str) -> MoviConfig:
         settings = {key: _tuples(value) for key, value in settings.items()}
         if materials is not None:
             settings["materials"] = tuple(Material(**fields) for fields in materials)
-        return MoviConfig(**settings)
+        return MoviSettings(**settings)
     except (AttributeError, TypeError, ValueError) as error:
         raise FignetError(f"the generator config is not one this version reads: {error}") from None
 
 
 def _tuples(value):
-    """json lists back to (nested) tuples, as MoviConfig holds them."""
+    """json lists back to (nested) tuples, as MoviSettings holds them."""
     return tuple(_tuples(item) for item in value) if isinstance(value, list) else value
 
 
 PRESETS = {
-    "movi-b": MoviConfig(),
-    "movi-c": MoviConfig(
+    "movi-b": MoviSettings(),
+    "movi-c": MoviSettings(
         preset="movi-c",
         scale_range=(0.75, 3.0),
         scale_largest_side=True,
@@ -178,7 +178,7 @@ PRESETS = {
 }
 
 
-def movi_config(preset: str, **overrides) -> MoviConfig:
+def movi_config(preset: str, **overrides) -> MoviSettings:
     """The preset's settings with `overrides` (None values are ignored), checked.
 
     Raises FignetError for an unknown preset, an fps that does not divide the physics
@@ -366,7 +366,7 @@ class ObjectSpec:
     material: Material
 
 
-def sample_objects(rng, largest_sides, config: MoviConfig) -> list:
+def sample_objects(rng, largest_sides, config: MoviSettings) -> list:
     """Draw the number of objects, then each one's asset, scale and material.
 
     largest_sides : (A,) the largest side of each asset (for scale_largest_side)
@@ -392,7 +392,7 @@ def rotated_box(bounds, quaternion) -> tuple:
     return turned.min(axis=0), turned.max(axis=0)
 
 
-def toss_velocity(rng, position, config: MoviConfig) -> np.ndarray:
+def toss_velocity(rng, position, config: MoviSettings) -> np.ndarray:
     """(3,) m/s: U(velocity_range) - (x, y, 0), biased toward the centre as in Kubric."""
     low, high = (np.asarray(corner, np.float64) for corner in config.velocity_range)
     return rng.uniform(low, high) - np.array([position[0], position[1], 0.0])
@@ -441,7 +441,7 @@ class MoviSimulator:
     The world is reset before each scene, so a scene depends only on its random stream.
     """
 
-    def __init__(self, shapes, config: MoviConfig, folder):
+    def __init__(self, shapes, config: MoviSettings, folder):
         import pybullet
 
         self.pybullet = pybullet
@@ -727,14 +727,14 @@ def _physical_extras(record: SimulationRecord, inertia: np.ndarray) -> dict:
     }
 
 
-def _floor_position(config: MoviConfig) -> list:
+def _floor_position(config: MoviSettings) -> list:
     return [0.0, 0.0, -float(config.floor_half_extents[2])]
 
 
 # ----------------------------------------------------------------------------- filters
 
 
-def drop_reason(record: SimulationRecord, scales, hulls, config: MoviConfig) -> str | None:
+def drop_reason(record: SimulationRecord, scales, hulls, config: MoviSettings) -> str | None:
     """Why a simulated scene must be dropped ('explosion', 'tunnel', 'penetration'), or None.
 
     scales : (O,) per body; hulls : per body, (H, 3) hull vertices or None for the floor
@@ -751,7 +751,7 @@ def drop_reason(record: SimulationRecord, scales, hulls, config: MoviConfig) -> 
     return None
 
 
-def _too_deep(depth, limit: float, config: MoviConfig) -> bool:
+def _too_deep(depth, limit: float, config: MoviSettings) -> bool:
     """depth : (T,) m per recorded frame. Beyond hard_depth once, or beyond `limit` in
     consecutive frames spanning at least sustained_time."""
     if depth.max() > config.hard_depth:
@@ -766,7 +766,7 @@ def _longest_run(mask) -> int:
     return int((edges[1::2] - edges[::2]).max(initial=0))
 
 
-def _exploded(record: SimulationRecord, config: MoviConfig) -> bool:
+def _exploded(record: SimulationRecord, config: MoviSettings) -> bool:
     arrays = (record.positions, record.quaternions, record.velocities, record.angular_velocities)
     if not all(np.all(np.isfinite(array)) for array in arrays):
         return True
@@ -792,7 +792,7 @@ def _work(task) -> TrajectoryResult:
     return _WORKER.simulate(seed, index)
 
 
-def generate(assets, config: MoviConfig, seed: int, indices, jobs: int = 1):
+def generate(assets, config: MoviSettings, seed: int, indices, jobs: int = 1):
     """Yield a TrajectoryResult per global index, in the order of `indices`.
 
     assets : ShapeAsset-like objects (name, vertices, faces, convex_parts)
@@ -841,7 +841,7 @@ def dataset_stats(results: list, seconds: float, jobs: int) -> dict:
 
 
 def dataset_file(
-    results: list, assets, config: MoviConfig, num_trajectories: int, attrs: dict
+    results: list, assets, config: MoviSettings, num_trajectories: int, attrs: dict
 ) -> TrajectoryFile:
     """The kept trajectories as a TrajectoryFile holding the floor and the shapes they use.
 
@@ -867,7 +867,7 @@ def dataset_file(
     )
 
 
-def floor_mesh(config: MoviConfig) -> Mesh:
+def floor_mesh(config: MoviSettings) -> Mesh:
     """The floor box (8 vertices, 12 outward triangles), centred on its own origin."""
     import trimesh
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.documents import read_npz_arrays, require_regular_file
+from fignetctl.core.containers import read_npz_arrays, require_regular_file
 from fignetctl.core.media import read_image
 from fignetctl.core.mesh_extraction import (
     ExtractionSettings,

@@ -37,7 +37,7 @@ from typing import Callable
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import NPZ_ERRORS
+from fignetctl.core.containers import NPZ_ERRORS
 from fignetctl.core.obj import read_obj_groups, read_obj_vertices, write_convex_parts_obj
 from fignetctl.errors import FignetError
 

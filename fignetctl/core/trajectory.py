@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import require_regular_file
+from fignetctl.core.containers import require_regular_file
 from fignetctl.core.hdf5_guard import read_guarded
 from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError

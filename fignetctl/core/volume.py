@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import read_npz_document
+from fignetctl.core.containers import read_npz_document
 from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 

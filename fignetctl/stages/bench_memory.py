@@ -59,7 +59,7 @@ def run(
     check(settings)
     if problem := model_problem(settings, model_paths):
         raise SettingError(problem)
-    config = benchmark.BenchmarkConfig(
+    config = benchmark.BenchmarkSettings(
         samples=settings.samples,
         repeats=settings.repeats,
         seed=settings.seed,

@@ -33,12 +33,12 @@ class Settings:
 
 def run(data, output=None, settings: Settings = Settings(), model=None, progress=None) -> dict:
     """Roll out the model file (or bundled model name) `model` from frames 0-1 of every
-    trajectory of the file `data` and compare (fignetctl.core.model.runs.evaluate_file); the
+    trajectory of the file `data` and compare (fignetctl.core.model.apply.evaluate_file); the
     metrics, with the model's name and the inputs' hashes, are written to the json file
     `output` atomically when given, and returned."""
     import json
 
-    from fignetctl.core.model.runs import evaluate_file, load_model
+    from fignetctl.core.model.apply import evaluate_file, load_model
     from fignetctl.core.provenance import INPUTS_KEY, stamp
 
     check(settings)

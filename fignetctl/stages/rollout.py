@@ -61,8 +61,8 @@ def run(
     the model's and the scene's hashes. `report` (default: stderr) gets a note when the scene is
     simulated at another scale. A rollout that goes wrong still writes the frames before the failure, then
     raises a FignetError naming the step and object. Returns the summary (also the --json)."""
+    from fignetctl.core.model.apply import load_model, rollout_file
     from fignetctl.core.model.rollout import RolloutError
-    from fignetctl.core.model.runs import load_model, rollout_file
     from fignetctl.core.provenance import from_strings
 
     check(settings)

@@ -91,7 +91,7 @@ def run(
     knobs, out_dir = selected(knobs), Path(out_dir)
     if problem := input_problem(knobs, capture, nerf, nerf_curve):
         raise SettingError(problem)
-    base = core.QUICK if settings.quick else core.TradeoffConfig()
+    base = core.QUICK if settings.quick else core.TradeoffSettings()
     given = {name: getattr(settings, name) for name in ("trajectories", "steps", "repeats", "train_steps")}
     config = dataclasses.replace(
         base,

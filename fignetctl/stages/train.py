@@ -98,7 +98,7 @@ def run(
     loss and seconds at every checkpoint, `rerun_path` the loss curve. Data-parallel under
     torchrun: every rank trains, rank 0 writes. Returns the summary (output, steps, loss, rank)."""
     from fignetctl.core.model.training import (
-        TrainingConfig,
+        TrainingSettings,
         make_trainer,
         resolve_precision,
         simulator_config_for,
@@ -125,7 +125,7 @@ def run(
         settings.state,
         settings.static_receivers,
     )
-    training_config = TrainingConfig(
+    training_config = TrainingSettings(
         steps=settings.steps,
         batch_size=settings.batch_size,
         learning_rate_initial=settings.learning_rate[0],

@@ -80,7 +80,7 @@ def test_start_velocity_duplicate_and_properties(extracted):
 
 @pytest.mark.parametrize("name", ["fignet-star-movi-b", "fignet-movi-b"])
 def test_default_properties_are_ones_the_bundled_models_were_trained_on(extracted, name):
-    from fignetctl.core.model.runs import load_model
+    from fignetctl.core.model.apply import load_model
     from fignetctl.core.model.trained_ranges import outside_ranges
 
     assert (

@@ -306,8 +306,8 @@ def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside
 ):
     import dataclasses
 
+    from fignetctl.core.model.apply import load_model
     from fignetctl.core.model.checkpoint import export_checkpoint
-    from fignetctl.core.model.runs import load_model
     from fignetctl.errors import FormatError
 
     _, data, model = trained

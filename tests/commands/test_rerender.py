@@ -6,9 +6,9 @@ from click.testing import CliRunner
 from fignetctl.cli import cli
 from fignetctl.core import pinhole, rerender
 from fignetctl.core.cameras import Cameras, write_cameras
-from fignetctl.core.pinhole import look_at
 from fignetctl.core.media import read_video_info
 from fignetctl.core.nerf import save_nerf
+from fignetctl.core.pinhole import look_at
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
 from tests.core.test_rerender import BOX_LOWER, BOX_UPPER, REST, solid_field, top_camera, write_volume
 

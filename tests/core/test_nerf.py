@@ -9,14 +9,13 @@ import pytest
 import torch
 
 from fignetctl.core.cameras import Cameras, write_cameras
-from fignetctl.core.pinhole import look_at
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
 from fignetctl.core.nerf.rays import scene_bounds
-from fignetctl.core.pinhole import pixel_rays
 from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
 from fignetctl.core.nerf.training import make_trainer
+from fignetctl.core.pinhole import look_at, pixel_rays
 from fignetctl.errors import FignetError, FormatError
 
 TINY = NerfConfig(

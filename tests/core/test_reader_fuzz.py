@@ -163,8 +163,8 @@ def _obj_file(path):
 
 def _readers():
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.obj import load_obj
     from fignetctl.core.nerf.io import load_nerf
+    from fignetctl.core.obj import load_obj
     from fignetctl.core.volume import read_volume
 
     return {

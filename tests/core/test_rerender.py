@@ -5,9 +5,9 @@ import pytest
 import torch
 
 from fignetctl.core import rerender
+from fignetctl.core.nerf import NerfConfig, NerfModel
 from fignetctl.core.pinhole import Camera, look_at
 from fignetctl.core.pinhole import pixel_of as pixel_of_point
-from fignetctl.core.nerf import NerfConfig, NerfModel
 from fignetctl.core.transforms import quat_from_axis_angle
 from fignetctl.core.volume import Volume
 from fignetctl.core.volume import write_volume as write_volume_file

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from fignetctl.core.model.runs import load_model, rollout_file
+from fignetctl.core.model.apply import load_model, rollout_file
 from fignetctl.core.scene_building import ACTIVE, PASSIVE
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import read_torch_document
+from fignetctl.core.containers import read_torch_document
 from fignetctl.core.model.trained_ranges import ranges_from_json
 from fignetctl.core.provenance import as_strings, file_sha256, stamp
 from fignetctl.errors import FormatError

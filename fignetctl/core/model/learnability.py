@@ -24,9 +24,9 @@ from fignetctl.core.model.graph import batch_graphs
 def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
     """Noise-free (graph, targets) of frames t of the scenes: all frames with t−1 and t+1
     inside the trajectory, or `frames_per_scene` drawn from them."""
-    from fignetctl.core.model.training import TrainingConfig, training_example
+    from fignetctl.core.model.training import TrainingSettings, training_example
 
-    clean = TrainingConfig(noise_translation_std=0.0, noise_rotation_std=0.0)
+    clean = TrainingSettings(noise_translation_std=0.0, noise_rotation_std=0.0)
     rng = np.random.default_rng(seed)
     generator = torch.Generator().manual_seed(seed)
     examples = []
@@ -82,9 +82,9 @@ def overfit(
     """A Trainer that has fitted `scenes` without noise (the learnability test) for `steps`, or
     for `until_step` of a `steps`-long schedule (continue it with `trainer.run(until_step=...)`)."""
     from fignetctl.core.model.simulator import LearnedSimulator
-    from fignetctl.core.model.training import Trainer, TrainingConfig
+    from fignetctl.core.model.training import Trainer, TrainingSettings
 
-    config = TrainingConfig(
+    config = TrainingSettings(
         steps=steps,
         batch_size=batch_size,
         learning_rate_initial=learning_rate[0],

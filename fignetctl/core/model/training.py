@@ -8,7 +8,7 @@ learning rate decaying exponentially from `learning_rate_initial` to `learning_r
 Throughput: the batches are built in worker processes (`TrainingBatches` behind a torch
 DataLoader) while the training process runs the network, and the network runs in bfloat16
 mixed precision where the processor does bfloat16 matrix products natively
-(`TrainingConfig.precision`); docs/simulator.md has the measured samples per second.
+(`TrainingSettings.precision`); docs/simulator.md has the measured samples per second.
 
 Everything random in batch k comes from generators seeded with (seed, rank, k), so a batch is
 the same whichever process builds it and whenever, and a run resumed from a checkpoint reaches
@@ -39,7 +39,7 @@ from fignetctl.errors import FignetError
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainingConfig:
+class TrainingSettings:
     """How long and how a simulator is trained."""
 
     steps: int = 20000
@@ -91,13 +91,13 @@ def resolve_precision(precision: str, device: str) -> str:
     return "bf16" if {"avx512_bf16", "amx_bf16"} & set(flags) else "fp32"
 
 
-def learning_rate_factor(step: int, config: TrainingConfig) -> float:
+def learning_rate_factor(step: int, config: TrainingSettings) -> float:
     """Multiplier of the initial rate at `step`: 1 at 0, final/initial at `steps`."""
     ratio = config.learning_rate_final / config.learning_rate_initial
     return ratio ** (min(step, config.steps) / max(config.steps, 1))
 
 
-def jitter_frame_t(positions, quaternions, static, generator, config: TrainingConfig):
+def jitter_frame_t(positions, quaternions, static, generator, config: TrainingSettings):
     """Per-object rigid noise (noise.py) on frame t (index 1) of (3, O, 3) / (3, O, 4) poses; copies."""
     noise = sample_rigid_pose_noise(
         torch.from_numpy(~static), config.noise_translation_std, config.noise_rotation_std, generator
@@ -107,7 +107,7 @@ def jitter_frame_t(positions, quaternions, static, generator, config: TrainingCo
     return positions, quaternions
 
 
-def jittered_step_velocities(scene, frame, generator, config: TrainingConfig):
+def jittered_step_velocities(scene, frame, generator, config: TrainingSettings):
     """Linear and angular velocities (O, 3) at `frame` in metres and radians per step, with
     per-object noise of the pose noise's standard deviations (none on static objects)."""
     noise = sample_rigid_pose_noise(
@@ -121,7 +121,7 @@ def jittered_step_velocities(scene, frame, generator, config: TrainingConfig):
     return linear, angular
 
 
-def training_example(simulator_config, scene, frame, generator, config: TrainingConfig):
+def training_example(simulator_config, scene, frame, generator, config: TrainingSettings):
     """One noisy example: the raw graph and the raw targets of its dynamic vertices, (Vd, 3)
     accelerations, or (Vd, 6) position and velocity corrections for a velocity state
     (simulator.py's module docstring)."""
@@ -163,7 +163,7 @@ class TrainingBatches(torch.utils.data.Dataset):
     """Batch k of a run, built from (seed, rank, k) alone: picklable, so DataLoader workers
     build batches while the training process runs the network."""
 
-    def __init__(self, scenes, simulator_config, config: TrainingConfig, rank: int = 0):
+    def __init__(self, scenes, simulator_config, config: TrainingSettings, rank: int = 0):
         self.scenes, self.simulator_config, self.config, self.rank = scenes, simulator_config, config, rank
 
     def __len__(self) -> int:
@@ -216,7 +216,7 @@ class Trainer:
     workers : processes that build batches (0: the training process builds them)
     """
 
-    def __init__(self, scenes, simulator, config: TrainingConfig, device="cpu", data_hash="", workers=0):
+    def __init__(self, scenes, simulator, config: TrainingSettings, device="cpu", data_hash="", workers=0):
         self.rank, device = distributed.join_process_group(device)
         simulator.trained_properties = property_ranges(
             ((s.geometry.properties, s.geometry.static) for s in scenes),
@@ -311,7 +311,7 @@ class Trainer:
         distributed.barrier()
 
 
-def regression_loss(predictions, targets, config: TrainingConfig) -> torch.Tensor:
+def regression_loss(predictions, targets, config: TrainingSettings) -> torch.Tensor:
     """Mean loss over nodes and components of the normalized accelerations."""
     if config.loss == "huber":
         return torch.nn.functional.huber_loss(predictions, targets, delta=config.huber_delta)
@@ -363,7 +363,7 @@ def make_trainer(
             "target_keeps_noise": False,
             **json.loads(state["training_config"]),
         }  # absent: a run before the field (precision too)
-        training_config = TrainingConfig(**{**stored, "steps": training_config.steps})
+        training_config = TrainingSettings(**{**stored, "steps": training_config.steps})
     if resume_from is None:
         simulator_config = dataclasses.replace(
             simulator_config, dt=float(data.dt), gravity=tuple(float(g) for g in data.gravity)

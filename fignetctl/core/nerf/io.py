@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.documents import read_torch_document
+from fignetctl.core.containers import read_torch_document
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError

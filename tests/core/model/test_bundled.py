@@ -4,9 +4,9 @@ import dataclasses
 
 import numpy as np
 
+from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.checkpoint import BUNDLED, bundled_model_path, read_checkpoint_payload
 from fignetctl.core.model.rollout import rollout
-from fignetctl.core.model.runs import load_model
 from fignetctl.core.model.scene_data import scene_from_trajectory
 from tests.conftest import box_drop_file
 

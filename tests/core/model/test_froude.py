@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fignetctl.core.model import froude
-from fignetctl.core.model.runs import rollout_file
+from fignetctl.core.model.apply import rollout_file
 from fignetctl.core.model.simulator import SimulatorConfig, free_flight_poses
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply

@@ -9,7 +9,7 @@ from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import RolloutError, rollout
 from fignetctl.core.model.scene_graph import GraphConfig
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
-from fignetctl.core.model.training import TrainingConfig, make_trainer
+from fignetctl.core.model.training import TrainingSettings, make_trainer
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
@@ -23,7 +23,7 @@ def box_file(tmp_path):
 
 
 def _config(**changes):
-    return dataclasses.replace(TrainingConfig(steps=8, batch_size=2, checkpoint_every=4), **changes)
+    return dataclasses.replace(TrainingSettings(steps=8, batch_size=2, checkpoint_every=4), **changes)
 
 
 def test_tiny_model_overfits_one_trajectory(box_file):
@@ -150,14 +150,14 @@ def test_huber_loss_is_quadratic_near_zero_and_linear_for_spikes():
     from fignetctl.core.model.training import regression_loss
     from fignetctl.errors import FignetError
 
-    config = TrainingConfig(loss="huber", huber_delta=1.0)
+    config = TrainingSettings(loss="huber", huber_delta=1.0)
     zero = torch.zeros(4, 3)
     small, spike = torch.full((4, 3), 0.1), torch.full((4, 3), 10.0)
     assert regression_loss(small, zero, config).item() == pytest.approx(0.5 * 0.01)
     assert regression_loss(spike, zero, config).item() == pytest.approx(10.0 - 0.5)
-    assert regression_loss(spike, zero, TrainingConfig()).item() == pytest.approx(100.0)
+    assert regression_loss(spike, zero, TrainingSettings()).item() == pytest.approx(100.0)
     with pytest.raises(FignetError, match="unknown loss"):
-        regression_loss(small, zero, TrainingConfig(loss="l1"))
+        regression_loss(small, zero, TrainingSettings(loss="l1"))
 
 
 def test_tiny_model_overfits_with_the_huber_loss(box_file):

@@ -20,7 +20,7 @@ from fignetctl.core.model.simulator import (
     integrate,
     rigid_velocities_from_vertices,
 )
-from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+from fignetctl.core.model.training import TrainingSettings, make_trainer, simulator_config_for
 from fignetctl.core.trajectory import estimated_velocities, read_trajectories, write_trajectories
 from fignetctl.core.transforms import quat_from_rotation_vector, quat_to_rotation_vector
 from fignetctl.errors import FignetError, FormatError
@@ -203,7 +203,7 @@ def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
 
 def test_a_velocity_model_learns_free_fall_and_its_rollout_carries_velocities(tmp_path):
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=30, height=8.0))
-    config = TrainingConfig(
+    config = TrainingSettings(
         steps=300,
         batch_size=2,
         noise_translation_std=0.0,
@@ -225,7 +225,7 @@ def test_a_velocity_model_learns_free_fall_and_its_rollout_carries_velocities(tm
 
 def test_batches_are_the_same_whichever_process_builds_them(tmp_path):
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
-    config = TrainingConfig(steps=4, batch_size=2)
+    config = TrainingSettings(steps=4, batch_size=2)
     here = make_trainer(path, VELOCITY_TINY, config, workers=0)
     there = make_trainer(path, VELOCITY_TINY, config, workers=1)
     here.run()
@@ -238,8 +238,8 @@ def test_each_process_of_a_data_parallel_run_draws_its_own_batches(tmp_path):
     from fignetctl.core.model.training import TrainingBatches
 
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=40))
-    scenes = make_trainer(path, VELOCITY_TINY, TrainingConfig(steps=1)).scenes
-    config = TrainingConfig(steps=2, batch_size=1)
+    scenes = make_trainer(path, VELOCITY_TINY, TrainingSettings(steps=1)).scenes
+    config = TrainingSettings(steps=2, batch_size=1)
     first, again, other = (
         TrainingBatches(scenes, VELOCITY_TINY, config, rank)[1]["targets"] for rank in (0, 0, 1)
     )
@@ -252,13 +252,13 @@ def test_velocity_training_needs_recorded_velocities(tmp_path):
     plain = dataclasses.replace(data.trajectories["00000"], velocities=None, angular_velocities=None)
     path = write_trajectories(tmp_path / "plain.h5", dataclasses.replace(data, trajectories={"00000": plain}))
     with pytest.raises(FignetError, match="no recorded velocities"):
-        make_trainer(path, VELOCITY_TINY, TrainingConfig(steps=1))
+        make_trainer(path, VELOCITY_TINY, TrainingSettings(steps=1))
 
 
 def test_a_positions_state_is_still_trained_and_stepped(tmp_path):
     path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
     positions_config = dataclasses.replace(VELOCITY_TINY, state="positions", network=PRESETS["tiny"])
-    trainer = make_trainer(path, positions_config, TrainingConfig(steps=2, batch_size=2))
+    trainer = make_trainer(path, positions_config, TrainingSettings(steps=2, batch_size=2))
     trainer.run()
     out = rollout(trainer.simulator.eval(), trainer.scenes[0], 3, with_velocities=True)
     assert out[2] is None and np.isfinite(out[0]).all()
@@ -274,7 +274,7 @@ def velocity_model(tmp_path_factory):
     """A velocity-state model file trained for a few steps on a 60 fps box drop, and the data."""
     folder = tmp_path_factory.mktemp("velocity")
     data = write_trajectories(folder / "box.h5", box_drop_file(frames=40, height=20.0))
-    trainer = make_trainer(data, VELOCITY_TINY, TrainingConfig(steps=3, batch_size=2))
+    trainer = make_trainer(data, VELOCITY_TINY, TrainingSettings(steps=3, batch_size=2))
     trainer.run(folder / "model.pt")
     return folder / "model.pt", data
 
@@ -283,8 +283,8 @@ def velocity_model(tmp_path_factory):
 def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated_size(
     velocity_model, tmp_path, scale
 ):
+    from fignetctl.core.model.apply import rollout_file
     from fignetctl.core.model.checkpoint import load_checkpoint
-    from fignetctl.core.model.runs import rollout_file
 
     model, data = velocity_model
     result = rollout_file(load_checkpoint(model), data, None, 12, sim_scale=scale, free_flight=True)
@@ -307,8 +307,8 @@ def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated
 def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refuses_another(
     velocity_model, tmp_path
 ):
+    from fignetctl.core.model.apply import rollout_file
     from fignetctl.core.model.checkpoint import load_checkpoint
-    from fignetctl.core.model.runs import rollout_file
 
     model, _ = velocity_model
     at_30_fps = write_trajectories(tmp_path / "30fps.h5", box_drop_file(frames=3, dt=1 / 30, height=20.0))

@@ -1,4 +1,4 @@
-"""Reading the project's documents: .npz (cameras.npz, volume.npz) and torch files (model.pt,
+"""The containers of the project's files: .npz (cameras.npz, volume.npz) and torch files (model.pt,
 nerf.pt), the container and its `format` / `format_version` checked once for every reader."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Files in, files out: the rollout and evaluation of trajectory files with a model file."""
+"""A model applied to trajectory files: their rollout and evaluation, files in and files out."""
 
 from __future__ import annotations
 

@@ -94,3 +94,28 @@ def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: in
             f"(this fignetctl reads {version}); upgrade fignetctl"
         )
     return payload
+
+
+def write_torch_document(
+    path, fmt: str, version: int, module, fields: dict, training_state=None, provenance=None
+):
+    """Write a torch file atomically: `format`, `format_version`, the provenance stamp (default:
+    the version alone), `fields`, the `module`'s weights on the CPU and, when given, the
+    `training_state` that makes it resumable. Returns the path."""
+    import torch
+
+    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.provenance import as_strings, stamp
+
+    payload = {
+        "format": fmt,
+        "format_version": version,
+        **as_strings(provenance or stamp()),
+        **fields,
+        "model": {k: v.detach().cpu() for k, v in module.state_dict().items()},
+    }
+    if training_state is not None:
+        payload["training_state"] = training_state
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+    return Path(path)

@@ -6,19 +6,11 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from fignetctl.bench.tradeoff import KNOBS
 from fignetctl.errors import SettingError
 from fignetctl.stages import check, no_progress, resolve_device, setting
 
-KNOB_CHOICES = (
-    "decimation",
-    "architecture",
-    "collision-radius",
-    "message-passing",
-    "marching-cubes",
-    "nerf-steps",
-    "device",
-    "all",
-)
+KNOB_CHOICES = (*KNOBS, "all")
 OUTPUT_EXTENSIONS = ("json", "csv", "png")
 
 

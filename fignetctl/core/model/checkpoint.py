@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.containers import read_torch_document
+from fignetctl.core.containers import read_torch_document, write_torch_document
 from fignetctl.core.model.trained_ranges import ranges_from_json
-from fignetctl.core.provenance import as_strings, file_sha256, stamp
+from fignetctl.core.provenance import file_sha256
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.model"
@@ -43,19 +43,8 @@ def bundled_model_path(name=DEFAULT_BUNDLED) -> Path:
 def save_checkpoint(path, simulator, training_state=None, extra=None, provenance=None) -> Path:
     """Write a model file atomically, stamped with `provenance` (provenance.stamp; default: the
     version alone); `training_state` makes it resumable."""
-    payload = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        **as_strings(provenance or stamp()),
-        "simulator_config": simulator.config.to_json(),
-        "model": {k: v.detach().cpu() for k, v in simulator.state_dict().items()},
-        **(extra or {}),
-    }
-    if training_state is not None:
-        payload["training_state"] = training_state
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
-    return Path(path)
+    fields = {"simulator_config": simulator.config.to_json(), **(extra or {})}
+    return write_torch_document(path, FORMAT, FORMAT_VERSION, simulator, fields, training_state, provenance)
 
 
 def read_checkpoint_payload(path) -> dict:

@@ -17,10 +17,8 @@ from pathlib import Path
 
 import torch
 
-from fignetctl.core.atomic import atomic_path
-from fignetctl.core.containers import read_torch_document
+from fignetctl.core.containers import read_torch_document, write_torch_document
 from fignetctl.core.nerf.config import NerfConfig
-from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.nerf"
@@ -30,23 +28,15 @@ FORMAT_VERSION = 1
 def save_nerf(path, model, metrics=None, inputs=None, training_state=None, provenance=None) -> Path:
     """Write a nerf.pt atomically, stamped with `provenance` (provenance.stamp; default: the
     version alone); `training_state` makes it resumable."""
-    payload = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        **as_strings(provenance or stamp()),
+    fields = {
         "config": model.config.to_json(),
         "bounds": model.bounds.tolist(),
         "density_shape": list(model.field.density_grid.shape[2:]),
         "feature_shape": list(model.field.feature_grid.shape[1:]),
         "metrics": json.dumps(metrics or {}),
         "inputs": json.dumps(inputs or {}),
-        "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
     }
-    if training_state is not None:
-        payload["training_state"] = training_state
-    with atomic_path(path) as tmp:
-        torch.save(payload, tmp)
-    return Path(path)
+    return write_torch_document(path, FORMAT, FORMAT_VERSION, model, fields, training_state, provenance)
 
 
 def read_nerf_payload(path) -> dict:

@@ -119,3 +119,12 @@ def write_torch_document(
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
     return Path(path)
+
+
+LOADING_ERRORS = (KeyError, TypeError, ValueError, RuntimeError, AttributeError, IndexError, RecursionError)
+"""What building a module from a file's settings and loading its weights raises when they disagree."""
+
+
+def weights_do_not_fit(path, error: Exception) -> FormatError:
+    """The one-line error for a file whose weights do not fit its stored settings."""
+    return FormatError(f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})")

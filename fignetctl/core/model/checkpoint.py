@@ -21,7 +21,12 @@ import numpy as np
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.containers import read_torch_document, write_torch_document
+from fignetctl.core.containers import (
+    LOADING_ERRORS,
+    read_torch_document,
+    weights_do_not_fit,
+    write_torch_document,
+)
 from fignetctl.core.model.trained_ranges import ranges_from_json
 from fignetctl.core.provenance import file_sha256
 from fignetctl.errors import FormatError
@@ -65,18 +70,8 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
         simulator = LearnedSimulator(config)
         simulator.load_state_dict(payload["model"])
         simulator.trained_properties = ranges_from_json(payload.get("trained_properties"))
-    except (
-        KeyError,
-        TypeError,
-        ValueError,
-        RuntimeError,
-        AttributeError,
-        IndexError,
-        RecursionError,
-    ) as error:
-        raise FormatError(
-            f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})"
-        ) from None
+    except LOADING_ERRORS as error:
+        raise weights_do_not_fit(path, error) from None
     _check_finite_state(simulator, path)
     simulator.source_sha256 = file_sha256(path)  # outputs made with it record which model file it was
     training_state = payload.get("training_state")

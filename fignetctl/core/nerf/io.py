@@ -17,9 +17,13 @@ from pathlib import Path
 
 import torch
 
-from fignetctl.core.containers import read_torch_document, write_torch_document
+from fignetctl.core.containers import (
+    LOADING_ERRORS,
+    read_torch_document,
+    weights_do_not_fit,
+    write_torch_document,
+)
 from fignetctl.core.nerf.config import NerfConfig
-from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.nerf"
 FORMAT_VERSION = 1
@@ -68,18 +72,8 @@ def load_nerf(path, device="cpu", with_training_state=False):
         model.load_state_dict(payload["model"])
         model.metrics = json.loads(payload.get("metrics", "{}"))
         model.inputs = json.loads(payload.get("inputs", "{}"))
-    except (
-        KeyError,
-        TypeError,
-        ValueError,
-        RuntimeError,
-        AttributeError,
-        IndexError,
-        RecursionError,
-    ) as error:
-        raise FormatError(
-            f"{path}: the weights do not fit the stored settings ({str(error).splitlines()[0]})"
-        ) from None
+    except LOADING_ERRORS as error:
+        raise weights_do_not_fit(path, error) from None
     model.to(device).eval()
     if with_training_state:
         return model, payload.get("training_state")

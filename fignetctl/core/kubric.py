@@ -156,7 +156,7 @@ def scene_trajectory(document: dict, floor_friction: float, floor_restitution: f
     return trajectory, 1.0 / frame_rate, gravity
 
 
-def floor_mesh(half_size: float) -> Mesh:
+def floor_square(half_size: float) -> Mesh:
     """A square of side 2 · half_size at z = 0, facing up."""
     corners = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32) * [
         half_size,
@@ -173,7 +173,7 @@ def kubric_file(
     rate and gravity (a file that differs is refused)."""
     from fignetctl.core.obj import load_obj
 
-    meshes = {FLOOR: floor_mesh(floor_half_size)}
+    meshes = {FLOOR: floor_square(floor_half_size)}
     trajectories, dt, gravity = {}, None, None
     for number, path in enumerate(paths):
         document = read_metadata(path)

@@ -31,6 +31,7 @@ import time
 import numpy as np
 
 from fignetctl.core.pinhole import PIXEL_CENTRE, Camera
+from fignetctl.core.shapes import box_corners
 from fignetctl.core.transforms import quat_to_matrix
 from fignetctl.core.volume import Volume
 from fignetctl.errors import FignetError
@@ -125,13 +126,6 @@ def check_object_fits_volume(object_vertices, name: str, volume: Volume) -> None
 
 
 # ----------------------------------------------------------------------------- geometry
-
-
-def box_corners(lower, upper) -> np.ndarray:
-    """(8, 3) corners of an axis-aligned box."""
-    return np.array(
-        [[x, y, z] for x in (lower[0], upper[0]) for y in (lower[1], upper[1]) for z in (lower[2], upper[2])]
-    )
 
 
 def rays_hit_box(origins, directions, lower, upper) -> np.ndarray:

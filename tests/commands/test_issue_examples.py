@@ -12,6 +12,7 @@ from click.testing import CliRunner
 
 from fignetctl.cli import cli
 from tests.conftest import box_drop_file
+from tests.core.test_reader_fuzz import _cameras_file, _header_unclosed, _npz_member_replaced, _png_claiming
 from tests.fuzz_corpus import BOX, base_files
 
 SECONDS = 60  # a case still running after this is a hang
@@ -80,6 +81,17 @@ def _fifo(folder, name):
     return path
 
 
+def _images_with_a_bomb(folder, name):
+    """The base capture's two image names: one a real 32x32 image, one a PNG declaring 10^10 pixels."""
+    import cv2
+
+    images = folder / name
+    images.mkdir()
+    cv2.imwrite(str(images / "top.png"), np.full((32, 32, 3), 90, np.uint8))
+    (images / "side.png").write_bytes(_png_claiming(100_000, 100_000))
+    return images
+
+
 NAN = float("nan")
 EYE_NAN = [[NAN] * 4] * 4
 ZERO = [[0.0] * 4] * 4
@@ -138,6 +150,10 @@ CASES = [
     ("tradeoff empty curve", "tradeoff nerf-steps --nerf-curve {file:empty} -o {out}"),
     ("tradeoff binary curve", "tradeoff nerf-steps --nerf-curve {file:binary} -o {out}"),
     ("rollout -o .", "rollout {trajectory} --steps 2 -o ."),
+    ("capture-poses bomb image", "capture-poses --images {file:bomb_images} -o {out}.npz"),
+    ("fit-nerf bomb image", "fit-nerf {file:bomb_images} {cameras} --steps 1 -o {out}.pt"),
+    ("extract-mesh bomb mask", "extract-mesh {nerf} --cameras {cameras} --masks {file:bomb_masks} -o {out}"),
+    ("capture-poses npy header", "capture-poses --import-cameras {file:npy_header} -o {out}.npz"),
 ]
 
 MAKERS = {
@@ -153,6 +169,11 @@ MAKERS = {
     "no_objects": lambda d: _trajectory(d, "none.h5", _no_objects),
     "fifo_h5": lambda d: _fifo(d, "fifo.h5"),
     "fifo_json": lambda d: _fifo(d, "fifo.json"),
+    "bomb_images": lambda d: _images_with_a_bomb(d, "bomb_images"),
+    "bomb_masks": lambda d: _images_with_a_bomb(d, "bomb_masks"),
+    "npy_header": lambda d: _npz_member_replaced(
+        _cameras_file(d / "good.npz"), d / "header.npz", "K.npy", _header_unclosed
+    ),
     "empty": lambda d: (d / "empty.json").write_bytes(b"") or d / "empty.json",
     "binary": lambda d: (d / "binary.json").write_bytes(bytes(range(256))) or d / "binary.json",
 }

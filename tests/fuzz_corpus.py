@@ -103,7 +103,7 @@ def base_files(folder: Path) -> dict:
     import cv2
 
     from fignetctl.core.cameras import Cameras, export_transforms_json, write_cameras
-    from fignetctl.core.model.checkpoint import bundled_model_path
+    from fignetctl.core.model.checkpoint import bundled_model_path, export_checkpoint
     from fignetctl.core.nerf import save_nerf
     from fignetctl.core.obj import write_obj
     from fignetctl.core.pinhole import look_at
@@ -122,7 +122,7 @@ def base_files(folder: Path) -> dict:
         [[0, 1, 2], [0, 2, 3]],
     )
     write_trajectories(folder / "trajectory.h5", box_rollout())
-    shutil.copyfile(bundled_model_path(), folder / "model.pt")
+    export_checkpoint(bundled_model_path(), folder / "model.pt")  # as a user ships one: with its checksum
     K, c2w, width, height = top_camera(size=32, focal=40.0)
     cameras = Cameras(
         np.array(["top.png", "side.png"]),

@@ -93,7 +93,33 @@ def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: in
             f"{path}: {kind} format_version {payload.get('format_version')!r} is not supported "
             f"(this fignetctl reads {version}); upgrade fignetctl"
         )
+    stored = payload.get(WEIGHTS_HASH_KEY)
+    if stored is not None and (
+        not isinstance(payload.get("model"), dict) or weights_sha256(payload["model"]) != stored
+    ):
+        raise FormatError(f"{path}: the weights do not match their stored checksum; the file is damaged")
     return payload
+
+
+WEIGHTS_HASH_KEY = "weights_sha256"
+
+
+def weights_sha256(state: dict) -> str:
+    """sha256 of a state dict's names, dtypes, shapes and bytes, in name order: written with the
+    weights, checked when they are read, so a flipped byte in them is an error, not a model."""
+    import hashlib
+
+    import torch
+
+    digest = hashlib.sha256()
+    for name in sorted(state):
+        tensor = state[name]
+        if not isinstance(tensor, torch.Tensor):
+            return ""
+        tensor = tensor.detach().cpu().contiguous()
+        digest.update(f"{name}:{tensor.dtype}:{tuple(tensor.shape)};".encode())
+        digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
+    return digest.hexdigest()
 
 
 def write_torch_document(
@@ -114,6 +140,7 @@ def write_torch_document(
         **fields,
         "model": {k: v.detach().cpu() for k, v in module.state_dict().items()},
     }
+    payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
     if training_state is not None:
         payload["training_state"] = training_state
     with atomic_path(path) as tmp:

@@ -172,8 +172,8 @@ def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gz
             meshes = f.create_group("meshes")
             for name, mesh in data.meshes.items():
                 group = meshes.create_group(name)
-                group.create_dataset("vertices", data=np.asarray(mesh.vertices, np.float32))
-                group.create_dataset("faces", data=np.asarray(mesh.faces, np.int32))
+                _checked_dataset(group, "vertices", np.asarray(mesh.vertices, np.float32))
+                _checked_dataset(group, "faces", np.asarray(mesh.faces, np.int32))
             trajectories = f.create_group("trajectories")
             for key, trajectory in data.trajectories.items():
                 _write_one(trajectories.create_group(str(key)), trajectory, compression)
@@ -188,12 +188,21 @@ def _write_one(group, trajectory: Trajectory, compression) -> None:
     for field in (*_FRAME_FIELDS, *_VELOCITY_FIELDS):
         value = getattr(trajectory, field)
         if value is not None:
-            group.create_dataset(field, data=np.asarray(value, np.float32), compression=compression)
+            _checked_dataset(group, field, np.asarray(value, np.float32), compression)
     for field, (kind, _) in _OBJECT_FIELDS.items():
         dtype = bool if kind == "b" else np.float32
-        group.create_dataset(field, data=np.asarray(getattr(trajectory, field), dtype))
+        _checked_dataset(group, field, np.asarray(getattr(trajectory, field), dtype))
     for field, value in trajectory.extras.items():
         group.create_dataset(field, data=value)
+
+
+def _checked_dataset(group, name, value: np.ndarray, compression=None) -> None:
+    """A dataset with HDF5's Fletcher-32 checksum: a damaged chunk fails to read (a one-line
+    error) instead of reading as other numbers. Empty arrays cannot be chunked and go plain."""
+    if value.size == 0:
+        group.create_dataset(name, data=value)
+    else:
+        group.create_dataset(name, data=value, compression=compression, fletcher32=True)
 
 
 def read_trajectories(path, trajectory_ids=None) -> TrajectoryFile:

@@ -516,3 +516,38 @@ def test_an_image_declaring_billions_of_pixels_is_refused_in_one_line(tmp_path):
             read_image(bomb, flags)
         assert "\n" not in str(caught.value)
     _refuses_clearly(list_images, tmp_path / "images", FormatError)
+
+
+# --- Damage inside the numbers themselves: checksums make it an error, not other numbers ---
+
+
+def test_a_changed_weight_is_refused_by_its_checksum(tmp_path):
+    import torch
+
+    simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1)))
+    path = save_checkpoint(tmp_path / "m.pt", simulator)
+    payload = torch.load(path, weights_only=True)
+    name = next(k for k, v in payload["model"].items() if v.is_floating_point() and v.numel())
+    payload["model"][name].view(-1)[0] += 1e-3  # what one flipped bit in the weights does
+    torch.save(payload, tmp_path / "changed.pt")
+    load_checkpoint(path)  # the untouched file reads
+    with pytest.raises(FormatError, match="checksum; the file is damaged"):
+        load_checkpoint(tmp_path / "changed.pt")
+
+
+@pytest.mark.parametrize("compression", [None, "gzip"])
+def test_a_flipped_byte_in_a_trajectory_dataset_is_refused(tmp_path, compression):
+    import h5py
+
+    path = write_trajectories(tmp_path / "t.h5", box_drop_file(frames=6), compression=compression)
+    with h5py.File(path, "r") as f:
+        dataset = f["trajectories/00000/positions"]
+        assert dataset.fletcher32
+        chunk = dataset.id.get_chunk_info(0)
+    data = bytearray(path.read_bytes())
+    data[chunk.byte_offset + chunk.size // 2] ^= 0x10
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(FormatError) as caught:
+        read_trajectories(damaged)
+    assert str(caught.value).startswith(str(damaged)) and "\n" not in str(caught.value)

@@ -23,8 +23,10 @@ import torch
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.containers import (
     LOADING_ERRORS,
+    WEIGHTS_HASH_KEY,
     read_torch_document,
     weights_do_not_fit,
+    weights_sha256,
     write_torch_document,
 )
 from fignetctl.core.model.trained_ranges import ranges_from_json
@@ -114,6 +116,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
         sides = np.concatenate([trajectory_largest_sides(data, key) for key in data.trajectories])
         ranges = property_ranges(((t.properties, t.static) for t in data.trajectories.values()), sides)
         payload["trained_properties"] = ranges_to_json(ranges)
+    payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
     with atomic_path(destination) as tmp:
         torch.save(payload, tmp)
     return Path(destination)

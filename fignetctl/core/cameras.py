@@ -215,7 +215,8 @@ def export_transforms_json(path, cameras: Cameras, image_prefix: str = "") -> No
 
 def import_transforms_json(path, image_dir=None) -> Cameras:
     """Read transforms.json; image names are relative to `image_dir` (default: the json's
-    folder). Sizes missing from the json are read from the first image."""
+    folder). Sizes missing from the json are read from the first image. The sparse points come
+    from the PLY named by `ply_file_path` (nerfstudio's COLMAP export), in the poses' frame."""
     path = require_regular_file(path)
     try:
         document = json.loads(path.read_text())
@@ -262,7 +263,35 @@ def import_transforms_json(path, image_dir=None) -> Cameras:
     u, _, vt = np.linalg.svd(c2ws[:, :3, :3])
     c2ws[:, :3, :3] = u @ vt
     width, height = sizes[0]
-    return validate(Cameras(np.array(names), np.array(Ks), c2ws, width, height), str(path))
+    points, colors = _ply_points(document, path)
+    return validate(Cameras(np.array(names), np.array(Ks), c2ws, width, height, points, colors), str(path))
+
+
+def _ply_points(document: dict, path: Path) -> tuple:
+    """(M, 3) points and (M, 3) uint8 colours of transforms.json's `ply_file_path` (relative to
+    the json), or none when it names no file."""
+    name = document.get("ply_file_path")
+    if not name:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    import trimesh
+
+    file = require_regular_file(path.parent / str(name), "PLY")
+    try:
+        cloud = trimesh.load(file, file_type="ply", process=False)
+        points = np.asarray(cloud.vertices, np.float64)
+        colors = getattr(getattr(cloud, "visual", None), "vertex_colors", None)
+        if colors is None or len(colors) != len(points):
+            colors = getattr(cloud, "colors", None)
+    except Exception as error:  # trimesh raises many types on a damaged file
+        raise FormatError(
+            f"{path}: ply_file_path {name!r} is not a readable PLY ({type(error).__name__})"
+        ) from None
+    if points.ndim != 2 or points.shape[1:] != (3,) or not np.isfinite(points).all():
+        raise FormatError(f"{path}: ply_file_path {name!r} holds no finite (M, 3) points")
+    colors = (
+        np.asarray(colors, np.uint8)[:, :3] if colors is not None and len(colors) == len(points) else None
+    )
+    return points, colors if colors is not None else np.full((len(points), 3), 128, np.uint8)
 
 
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")

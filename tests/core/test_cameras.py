@@ -53,6 +53,26 @@ def test_transforms_json_round_trip(tmp_path):
     assert list(back.image_names) == list(cameras.image_names)
 
 
+def test_transforms_json_sparse_points_come_from_its_ply(tmp_path):
+    import trimesh
+
+    cameras = random_cameras()
+    export_transforms_json(tmp_path / "transforms.json", cameras)
+    cloud = trimesh.PointCloud(cameras.points, colors=np.c_[cameras.point_colors, np.full(7, 255)])
+    cloud.export(tmp_path / "sparse_pc.ply")
+    document = json.loads((tmp_path / "transforms.json").read_text())
+    (tmp_path / "transforms.json").write_text(json.dumps({**document, "ply_file_path": "sparse_pc.ply"}))
+    back = import_transforms_json(tmp_path / "transforms.json")
+    np.testing.assert_allclose(back.points, cameras.points, atol=1e-6)
+    np.testing.assert_array_equal(back.point_colors, cameras.point_colors)
+    (tmp_path / "sparse_pc.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 9")
+    with pytest.raises(FormatError, match="ply_file_path 'sparse_pc.ply'"):
+        import_transforms_json(tmp_path / "transforms.json")
+    (tmp_path / "sparse_pc.ply").unlink()
+    with pytest.raises(FormatError, match="sparse_pc.ply: no such PLY file"):
+        import_transforms_json(tmp_path / "transforms.json")
+
+
 def test_nerf_synthetic_camera_angle(tmp_path):
     document = {
         "camera_angle_x": 2 * np.arctan(0.5),

@@ -203,8 +203,33 @@ def damages(flips: int) -> list[str]:
     )
 
 
+NPZ_DAMAGES = ("npy_header", "npy_truncated")
+"""For .npz inputs: the zip intact, its first array's .npy header unparsable, or cut short."""
+
+
+def _npz_member_damaged(source: Path, target: Path, damage: str) -> None:
+    import zipfile
+
+    with zipfile.ZipFile(source) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    first = next(iter(members))
+    data = members[first]
+    if damage == "npy_header":
+        length = int.from_bytes(data[8:10], "little")
+        header = data[10 : 10 + length].replace(b"}", b" ").replace(b"(", b"((")
+        members[first] = data[:10] + header + data[10 + length :]
+    else:
+        members[first] = data[:20]
+    with zipfile.ZipFile(target, "w") as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+
+
 def write_damaged(source: Path, target: Path, damage: str, other: Path) -> None:
     """Make `target` a damaged copy of `source` (or no file at all, for 'missing')."""
+    if damage in NPZ_DAMAGES:
+        _npz_member_damaged(source, target, damage)
+        return
     data = source.read_bytes()
     rng = np.random.default_rng(zlib.crc32(f"{source.name}:{damage}".encode()))
     if damage == "missing":
@@ -244,7 +269,8 @@ def corpus(flips: int = 8, values=BAD_VALUES) -> list[Case]:
     cases = []
     for command, slots in FILE_COMMANDS:
         for slot in slots:
-            for damage in damages(flips):
+            extra = NPZ_DAMAGES if slot in ("cameras", "volume") else ()
+            for damage in (*damages(flips), *extra):
                 name = f"{command.split()[0]}:{slot}:{damage}"
                 cases.append(Case(f"{name}:{len(cases)}", command, slot=slot, damage=damage))
     for command in OPTION_COMMANDS:

@@ -76,8 +76,11 @@ def validate_volume(volume: Volume, where: str = "volume") -> Volume:
         if np.any(values[high] <= values[low]):
             raise FormatError(f"{where}: {high!r} must be greater than {low!r} on every axis")
     for field in ("object_mesh", "environment_mesh"):
-        if not str(getattr(volume, field)):
+        name = str(getattr(volume, field))
+        if not name:
             raise FormatError(f"{where}: field {field!r} is empty")
+        if name != Path(name).name or name in (".", ".."):  # a file beside volume.npz, never elsewhere
+            raise FormatError(f"{where}: field {field!r} is {name!r}, not a file name beside volume.npz")
     if not isinstance(volume.settings, dict):
         raise FormatError(f"{where}: field 'settings' must be a json object")
     return dataclasses.replace(

@@ -231,6 +231,10 @@ def test_cameras_npz_with_wrong_fields(tmp_path, changes):
         {"environment_origin": np.array("x")},
         {"format_version": np.array("1")},
         {"origin": np.zeros(4)},
+        {"object_mesh": np.array("../../etc/passwd")},
+        {"environment_mesh": np.array("/tmp/other.obj")},
+        {"object_mesh": np.array("sub/object.obj")},
+        {"object_mesh": np.array("..")},
     ],
 )
 def test_volume_npz_with_wrong_fields(tmp_path, changes):

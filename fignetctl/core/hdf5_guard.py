@@ -9,6 +9,7 @@ runs in this process, unguarded.
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 from pathlib import Path
 
@@ -26,7 +27,15 @@ def read_guarded(reader, path, *args):
     context = multiprocessing.get_context("fork")
     receiving, sending = context.Pipe(duplex=False)
     child = context.Process(target=_run_child, args=(sending, reader, path, args), daemon=True)
-    child.start()
+    # The child must not collect the parent's garbage: a finalizer there (a video decoder's
+    # release, say) can wait for threads that fork did not copy, and hang the read. Objects
+    # frozen before the fork are left alone by the child's collector.
+    gc.collect()
+    gc.freeze()
+    try:
+        child.start()
+    finally:
+        gc.unfreeze()
     sending.close()
     timeout = BASE_TIMEOUT_S + TIMEOUT_S_PER_MB * path.stat().st_size / 1e6
     try:

@@ -417,26 +417,44 @@ def _log_traces(rec, rr, trajectory: Trajectory, root: str) -> None:
 
 
 def _log_frames(rec, rr, data: TrajectoryFile, trajectory: Trajectory, root: str) -> None:
-    """Per frame: every object's pose, and the energies and lowest vertex height as scalars."""
+    """Per frame: every object's pose, and the energies and lowest vertex height as scalars;
+    each series sent whole, in one `send_columns` call (docs/show.md times it against a `log`
+    call per frame and object)."""
+    frames = np.arange(trajectory.num_frames)
     terms = energies(data, trajectory)
     lowest = lowest_vertex_heights(data, trajectory)
     quaternions_xyzw = np.asarray(trajectory.quaternions, np.float32)[..., [1, 2, 3, 0]]
-    for frame in range(trajectory.num_frames):
-        rec.set_time("frame", sequence=frame)
-        rec.set_time("time", duration=frame * float(data.dt))
-        for index, name in enumerate(trajectory.mesh_names):
-            rec.log(
-                _object_entity(root, index, str(name)),
-                rr.Transform3D(
-                    translation=trajectory.positions[frame, index],
-                    quaternion=rr.Quaternion(xyzw=quaternions_xyzw[frame, index]),
-                    scale=float(trajectory.scales[index]),
-                ),
-            )
-        for term, values in terms.items():
-            rec.log(f"{root}/plots/energy/{term}", rr.Scalars(float(values[frame])))
-        if np.isfinite(lowest[frame]):
-            rec.log(f"{root}/plots/lowest_vertex_z", rr.Scalars(float(lowest[frame])))
+    positions = np.asarray(trajectory.positions, np.float32)
+
+    def times(keep=slice(None)):
+        return [
+            rr.TimeColumn("frame", sequence=frames[keep]),
+            rr.TimeColumn("time", duration=frames[keep] * float(data.dt)),
+        ]
+
+    for index, name in enumerate(trajectory.mesh_names):
+        rec.send_columns(
+            _object_entity(root, index, str(name)),
+            indexes=times(),
+            columns=rr.Transform3D.columns(
+                translation=positions[:, index],
+                quaternion=quaternions_xyzw[:, index],
+                scale=np.full((len(frames), 3), float(trajectory.scales[index]), np.float32),
+            ),
+        )
+    for term, values in terms.items():
+        rec.send_columns(
+            f"{root}/plots/energy/{term}",
+            indexes=times(),
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
+    finite = np.isfinite(lowest)
+    if finite.any():
+        rec.send_columns(
+            f"{root}/plots/lowest_vertex_z",
+            indexes=times(finite),
+            columns=rr.Scalars.columns(scalars=np.asarray(lowest, np.float64)[finite]),
+        )
 
 
 def log_trajectory(rec, data: TrajectoryFile, trajectory_id, entity_root: str = "world") -> None:
@@ -487,8 +505,27 @@ def log_scalars_to_rerun(path_rrd, entity_root: str, series: dict) -> Path:
     series : name -> list of (step, value); logged as <root>/<name> on the "step" timeline
     """
     with recording(path_rrd) as (rr, rec):
-        for name, points in series.items():
-            for step, value in points:
-                rec.set_time("step", sequence=int(step))
-                rec.log(f"{entity_root}/{name}", rr.Scalars(float(value)))
+        log_scalar_series(rr, rec, entity_root, series)
     return Path(path_rrd)
+
+
+def log_scalar_series(rr, rec, entity_root: str, series: dict) -> None:
+    """Scalar curves (name -> list of (step, value)) into an open stream `rec`, as
+    <root>/<name> on the "step" timeline: each curve in one `send_columns` call."""
+    for name, points in series.items():
+        if len(points) == 0:
+            continue
+        steps, values = zip(*points)
+        rec.send_columns(
+            f"{entity_root}/{name}",
+            indexes=[rr.TimeColumn("step", sequence=np.asarray(steps, np.int64))],
+            columns=rr.Scalars.columns(scalars=np.asarray(values, np.float64)),
+        )
+
+
+def log_scalar_step(rr, rec, entity_root: str, step: int, values: dict) -> None:
+    """One step of scalar curves (name -> value) into `rec`: the entities of
+    `log_scalar_series`, for a viewer watching a run (`live_recording`)."""
+    rec.set_time("step", sequence=int(step))
+    for name, value in values.items():
+        rec.log(f"{entity_root}/{name}", rr.Scalars(float(value)))

@@ -6,8 +6,9 @@ import dataclasses
 import math
 from pathlib import Path
 
+from fignetctl.core.rerun_log import DEFAULT_VIEWER
 from fignetctl.errors import SettingError
-from fignetctl.stages import check, no_progress, resolve_device, setting
+from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +81,12 @@ class Settings:
     device: str = setting(
         "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
     )
+    rerun_connect: str | None = setting(
+        None,
+        "Stream the loss per step to the rerun viewer at ADDR while training runs (a viewer started "
+        f"with `rerun`: {DEFAULT_VIEWER}); a warning if none listens.",
+        metavar="ADDR",
+    )
 
 
 def run(
@@ -91,12 +98,15 @@ def run(
     rerun_path=None,
     overwrite=False,
     progress=None,
+    report=None,
 ) -> dict:
     """Train on the trajectory file `dataset`, writing the model file `output` atomically every
     `checkpoint_every` steps (with the training data's hash); `resume` continues the run saved
     in `output`, `init_from` starts a new one from a model file's weights. `log_csv` gets step,
-    loss and seconds at every checkpoint, `rerun_path` the loss curve. Data-parallel under
-    torchrun: every rank trains, rank 0 writes. Returns the summary (output, steps, loss, rank)."""
+    loss and seconds at every checkpoint, `rerun_path` the loss curve; `settings.rerun_connect`
+    streams the curve to the viewer there as training goes (a warning through `report`, stderr
+    when None, if none listens). Data-parallel under torchrun: every rank trains, rank 0 writes and
+    streams. Returns the summary (output, steps, loss, rank)."""
     from fignetctl.core.model.training import (
         TrainingSettings,
         make_trainer,
@@ -104,8 +114,12 @@ def run(
         simulator_config_for,
         write_loss_csv,
     )
+    from fignetctl.core.rerun_log import live_recording, viewer_address
+    from fignetctl.core.viz import log_scalar_step
 
     check(settings)
+    if settings.rerun_connect is not None:
+        viewer_address(settings.rerun_connect)  # a bad address is refused before training, not after
     rates = settings.learning_rate
     if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
         raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
@@ -140,16 +154,27 @@ def run(
     trainer = make_trainer(
         dataset, simulator_config, training_config, device, resume_from, init_from, settings.workers
     )
-    with (progress or no_progress)(
-        total=settings.steps,
-        initial=trainer.step,
-        unit="step",
-        desc="train",
-        disable=trainer.rank != 0 or None,
-    ) as bar:
+    address = settings.rerun_connect if trainer.rank == 0 else None
+    with (
+        live_recording(address, rerun_path or output, report or to_stderr) as live,
+        (progress or no_progress)(
+            total=settings.steps,
+            initial=trainer.step,
+            unit="step",
+            desc="train",
+            disable=trainer.rank != 0 or None,
+        ) as bar,
+    ):
+
+        def on_step(step, loss):
+            bar.update(1)
+            bar.set_postfix(loss=f"{loss:.4g}")
+            if live:
+                log_scalar_step(*live, "train", step, {"loss": loss})
+
         trainer.run(
             output,
-            on_step=lambda step, loss: (bar.update(1), bar.set_postfix(loss=f"{loss:.4g}")),
+            on_step=on_step,
             on_checkpoint=lambda: log_csv and trainer.rank == 0 and write_loss_csv(log_csv, trainer.history),
         )
     if trainer.rank == 0 and rerun_path:

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 from fignetctl.cli import cli
 from fignetctl.core.cameras import export_transforms_json, read_cameras, write_cameras
 from tests.core.synthetic_views import render_views
+from tests.rerun_reading import read_recording
 
 
 def run(*args):
@@ -59,7 +60,16 @@ def test_images_to_cameras_in_metres_z_up(views, tmp_path):
     assert (cameras.c2w[:, 2, 2] < -0.3).all()
     frames = json.loads((tmp_path / "out" / "transforms.json").read_text())["frames"]
     assert frames[0]["file_path"].endswith(f"images/{cameras.image_names[0]}")
-    assert (tmp_path / "out" / "poses.rrd").stat().st_size > 0
+    recording = read_recording(tmp_path / "out" / "poses.rrd")  # one frustum and image per camera
+    frusta = [f"world/cameras/{i:04d}" for i in range(len(cameras))]
+    assert recording.entities_under("world/cameras") == sorted(frusta + [f + "/image" for f in frusta])
+    for frustum in frusta:
+        assert {"Pinhole:image_from_camera", "Transform3D:translation"} <= recording.components(frustum)
+        assert recording.entities[frustum].static and recording.entities[frustum + "/image"].static
+    assert recording.entities["world/points"].static and "Points3D:positions" in recording.components(
+        "world/points"
+    )
+    assert recording.recording_id == str((tmp_path / "out").resolve())
 
 
 def test_existing_output_needs_overwrite(views, tmp_path):

@@ -9,6 +9,7 @@ from fignetctl.cli import cli
 from fignetctl.core.cameras import read_cameras, write_cameras
 from fignetctl.core.nerf.io import load_nerf
 from tests.core.test_nerf import write_synthetic_scene
+from tests.rerun_reading import SavingViewer, dead_address, read_recording, rerun_executable
 
 FAST = ["--max-image-side", "32", "--rays-per-batch", "128"]
 
@@ -43,7 +44,45 @@ def test_fit_writes_a_loadable_field_with_metrics_and_a_rerun_log(fitted):
     model = load_nerf(nerf)
     assert model.metrics["steps"] == 3 and np.isfinite(model.metrics["held_out_psnr"])
     assert model.inputs["held_out_views"] == [0] and model.inputs["trained_width"] == 32
-    assert (folder / "fit.rrd").stat().st_size > 0
+    recording = read_recording(folder / "fit.rrd")
+    for curve in ("fit-nerf/loss", "fit-nerf/train_psnr"):
+        assert recording.times(curve, "step") == [1, 2, 3] and recording.rows(curve) == 3
+    views = ["fit-nerf/held_out/view_000/" + name for name in ("depth", "image", "rendered")]
+    assert recording.entities_under("fit-nerf/held_out") == views
+    assert all(recording.times(view, "step") == [3] for view in views)
+    assert recording.recording_id == str(folder.resolve())
+
+
+@pytest.mark.skipif(rerun_executable() is None, reason="the rerun viewer CLI is not installed")
+def test_fit_streams_to_a_running_viewer_what_it_records(fitted, tmp_path):
+    _, images, cameras, _, _ = fitted
+    rrd = tmp_path / "fit.rrd"
+    with SavingViewer(tmp_path / "viewer" / "live.rrd") as viewer:
+        result = fit(images, cameras, tmp_path / "nerf.pt", "--rerun", rrd, "--rerun-connect", viewer.address)
+        assert result.exit_code == 0, result.output
+    live, saved = read_recording(viewer.path), read_recording(rrd)
+    assert sorted(live.entities) == sorted(saved.entities)  # the curves step by step, then the views
+    for entity in saved.entities:
+        assert live.times(entity, "step") == saved.times(entity, "step"), entity
+    assert live.recording_id == saved.recording_id == str(tmp_path.resolve())
+
+
+def test_fit_goes_on_when_no_viewer_listens(fitted, tmp_path):
+    _, images, cameras, _, _ = fitted
+    address = dead_address()
+    result = fit(images, cameras, tmp_path / "nerf.pt", "--rerun-connect", address)
+    assert result.exit_code == 0, result.output
+    assert [line for line in result.stderr.splitlines() if "warning" in line] == [
+        f"warning: no rerun viewer listens at {address}; going on without live viewing"
+    ]
+    assert load_nerf(tmp_path / "nerf.pt").metrics["steps"] == 3
+
+
+def fit(images, cameras, output, *extra):
+    return CliRunner().invoke(
+        cli,
+        ["fit-nerf", str(images), str(cameras), "-o", str(output), "--steps", "3", *FAST, *map(str, extra)],
+    )
 
 
 def test_existing_output_needs_overwrite_and_resume_continues(fitted):

@@ -9,6 +9,7 @@ from fignetctl.cli import cli
 from fignetctl.core.provenance import file_sha256, read_provenance
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from tests.conftest import box_drop_file
+from tests.rerun_reading import SavingViewer, dead_address, read_recording, rerun_executable
 
 
 @pytest.fixture(scope="module")
@@ -104,10 +105,19 @@ def test_train_refuses_existing_output_and_resumes_on_request(trained):
 def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
     _, data, model = trained
     out = tmp_path / "rollout.h5"
+    rrd = tmp_path / "rollout.rrd"
     result = CliRunner().invoke(
-        cli, ["rollout", str(data), "--model", str(model), "--steps", "5", "-o", str(out)]
+        cli,
+        ["rollout", str(data), "--model", str(model), "--steps", "5", "-o", str(out), "--rerun", str(rrd)],
     )
     assert result.exit_code == 0, result.output
+    recording = read_recording(rrd)  # the rolled-out trajectory, frame by frame, as `show` logs it
+    assert recording.entities_under("world/objects") == ["world/objects/00_floor", "world/objects/01_box"]
+    for entity in recording.entities_under("world/objects"):
+        assert "Mesh3D:vertex_positions" in recording.components(entity)
+        assert recording.times(entity, "frame") == list(range(7)) and recording.rows(entity) == 7
+    assert recording.entities_under("world/traces") == ["world/traces/01_box"]
+    assert recording.times("world/plots/energy/total", "frame") == list(range(7))
     rolled = read_trajectories(out).trajectories["00000"]
     truth = read_trajectories(data).trajectories["00000"]
     assert rolled.positions.shape == (7, 2, 3)
@@ -279,26 +289,53 @@ def test_rollout_refuses_scene_with_one_frame(trained, tmp_path):
     assert result.exit_code == 1 and "needs 2" in result.output
 
 
+def train_briefly(data, output, *extra):
+    return CliRunner().invoke(
+        cli, ["train", str(data), "-o", str(output), "--size", "tiny", "--steps", "2", *map(str, extra)]
+    )
+
+
 def test_train_logs_loss_to_rerun(trained, tmp_path):
     _, data, _ = trained
     rrd = tmp_path / "loss.rrd"
-    result = CliRunner().invoke(
-        cli,
-        [
-            "train",
-            str(data),
-            "-o",
-            str(tmp_path / "m.pt"),
-            "--size",
-            "tiny",
-            "--steps",
-            "2",
-            "--rerun",
-            str(rrd),
-        ],
-    )
+    result = train_briefly(data, tmp_path / "m.pt", "--rerun", rrd)
     assert result.exit_code == 0, result.output
-    assert rrd.stat().st_size > 100
+    recording = read_recording(rrd)
+    assert list(recording.entities) == ["train/loss"]
+    assert recording.times("train/loss", "step") == [1, 2] and recording.rows("train/loss") == 2
+    assert recording.application_id == "fignetctl" and recording.recording_id == str(tmp_path.resolve())
+
+
+@pytest.mark.skipif(rerun_executable() is None, reason="the rerun viewer CLI is not installed")
+def test_train_streams_the_loss_to_a_running_viewer(trained, tmp_path):
+    _, data, _ = trained
+    with SavingViewer(tmp_path / "viewer" / "live.rrd") as viewer:
+        result = train_briefly(
+            data, tmp_path / "m.pt", "--rerun", tmp_path / "loss.rrd", "--rerun-connect", viewer.address
+        )
+        assert result.exit_code == 0, result.output
+    live, saved = read_recording(viewer.path), read_recording(tmp_path / "loss.rrd")
+    assert list(live.entities) == list(saved.entities) == ["train/loss"]
+    assert live.times("train/loss", "step") == saved.times("train/loss", "step") == [1, 2]
+    assert live.recording_id == saved.recording_id  # the viewer shows both as one recording
+    assert "warning" not in result.output
+
+
+def test_train_goes_on_when_no_viewer_listens(trained, tmp_path):
+    _, data, _ = trained
+    address = dead_address()
+    result = train_briefly(data, tmp_path / "m.pt", "--rerun-connect", address)
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.stderr.splitlines() if "warning" in line]
+    assert warnings == [f"warning: no rerun viewer listens at {address}; going on without live viewing"]
+    assert (tmp_path / "m.pt").is_file()
+    refused = train_briefly(data, tmp_path / "n.pt", "--rerun-connect", "localhost:9876")
+    assert (
+        refused.exit_code == 2
+        and "--rerun-connect 'localhost:9876'" in refused.output
+        and "Traceback" not in refused.output
+    )
+    assert not (tmp_path / "n.pt").exists()
 
 
 def test_model_stores_the_properties_it_was_trained_on_and_rollout_warns_outside_them(

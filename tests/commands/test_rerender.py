@@ -11,6 +11,7 @@ from fignetctl.core.nerf import save_nerf
 from fignetctl.core.pinhole import look_at
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
 from tests.core.test_rerender import BOX_LOWER, BOX_UPPER, REST, solid_field, top_camera, write_volume
+from tests.rerun_reading import read_recording
 
 FRAMES = 4
 
@@ -121,7 +122,19 @@ def test_orbit_every_trace_rerun_and_scaled_size(inputs, tmp_path):
     images = [cv2.imread(str(p)) for p in sorted(frames.glob("*.png"))]
     assert len(images) == 2 and images[0].shape == (18, 24, 3)
     assert np.abs(images[0].astype(int) - images[1].astype(int)).mean() > 1  # the camera moved
-    assert rrd.stat().st_size > 1000
+    recording = read_recording(rrd)  # per frame: the object, the camera's pose and its image
+    assert recording.entities_under("world") == [
+        "world",
+        "world/camera",
+        "world/camera/image",
+        "world/object",
+        "world/trace",
+    ]
+    for entity in ("world/camera", "world/camera/image", "world/object"):
+        assert recording.times(entity, "frame") == [0, 1], entity
+    assert recording.rows("world/camera/image") == recording.rows("world/object") == 2
+    assert {"Pinhole:image_from_camera", "Transform3D:mat3x3"} <= recording.components("world/camera")
+    assert recording.entities["world/trace"].static
 
 
 def test_existing_output_needs_overwrite(inputs, tmp_path):

@@ -57,17 +57,35 @@ def render_views_to_folder(model, cameras, indices, folder, scale=None) -> list:
 def log_fit_to_rerun(path_rrd, trainer, renderings) -> Path:
     """Loss and PSNR per step, and each held-out view rendered beside its image."""
     from fignetctl.core.rerun_log import recording
+    from fignetctl.core.viz import log_scalar_series
 
     path_rrd = Path(path_rrd)
     with recording(path_rrd) as (rr, rec):
-        for record in trainer.history:
-            rec.set_time("step", sequence=int(record["step"]))
-            rec.log("fit-nerf/loss", rr.Scalars(float(record["loss"])))
-            rec.log("fit-nerf/train_psnr", rr.Scalars(float(record["psnr"])))
-        rec.set_time("step", sequence=int(trainer.step))
-        for index, rendering in zip(trainer.held_out_views, renderings):
-            name = f"fit-nerf/held_out/view_{int(index):03d}"
-            rec.log(f"{name}/rendered", rr.Image((np.clip(rendering.rgb, 0, 1) * 255).astype(np.uint8)))
-            rec.log(f"{name}/image", rr.Image((trainer.views.images[index] * 255).astype(np.uint8)))
-            rec.log(f"{name}/depth", rr.DepthImage(rendering.depth))
+        history = trainer.history
+        series = {name: [(r["step"], r[key]) for r in history] for name, key in FIT_SCALARS.items()}
+        log_scalar_series(rr, rec, "fit-nerf", series)
+        log_held_out(rr, rec, trainer, renderings)
     return path_rrd
+
+
+FIT_SCALARS = {"loss": "loss", "train_psnr": "psnr"}
+"""The curves of a fit: entity fit-nerf/<name> <- the key of a step's record."""
+
+
+def log_fit_step(rr, rec, record) -> None:
+    """One step's loss and PSNR (a record of the trainer's history) into `rec`: the curves of
+    `log_fit_to_rerun`, for a viewer watching the fit."""
+    from fignetctl.core.viz import log_scalar_step
+
+    values = {name: record[key] for name, key in FIT_SCALARS.items()}
+    log_scalar_step(rr, rec, "fit-nerf", record["step"], values)
+
+
+def log_held_out(rr, rec, trainer, renderings) -> None:
+    """Each held-out view, rendered, its image and the rendered depth, at the last step."""
+    rec.set_time("step", sequence=int(trainer.step))
+    for index, rendering in zip(trainer.held_out_views, renderings):
+        name = f"fit-nerf/held_out/view_{int(index):03d}"
+        rec.log(f"{name}/rendered", rr.Image((np.clip(rendering.rgb, 0, 1) * 255).astype(np.uint8)))
+        rec.log(f"{name}/image", rr.Image((trainer.views.images[index] * 255).astype(np.uint8)))
+        rec.log(f"{name}/depth", rr.DepthImage(rendering.depth))

@@ -37,11 +37,12 @@ def extract_mesh(nerf, output, json_path, overwrite, **values):
 
     The object is given by point prompts in >= 2 views (masks by GrabCut + NeRF depth), by
     user masks, or by a box. Masked pixels are unprojected with depth to a box V_o; the density
-    in V_o is meshed by marching cubes at --threshold, cleaned (small fragments dropped, faces
-    outward, the unseen bottom capped) and decimated to --faces. The environment is meshed the
-    same way from a box around and below V_o. Writes object.obj (vertices relative to the
-    object's origin), environment.obj (world), volume.npz and masks/ into --output; prints the
-    folder. See docs/extract-mesh.md.
+    in V_o is meshed by marching cubes at --threshold (auto: of a few levels, the one whose
+    mesh's outline best matches the masks), cleaned (small fragments dropped, faces outward, the
+    unseen bottom capped) and decimated to --faces. The environment is meshed the same way from
+    a box around and below V_o. Writes object.obj (vertices relative to the object's origin),
+    environment.obj (world), volume.npz and masks/ into --output; prints the folder. See
+    docs/extract-mesh.md.
 
     \b
     Example:

@@ -9,12 +9,18 @@ The density is any callable `density(points (P, 3) numpy) -> (P,)`, e.g. `NerfMo
 or an analytic function in the tests. The grid is padded with one layer of zero density, so
 every surface is closed: where the box cuts through matter (the object's unseen bottom above
 the support, the environment's sides and bottom) the mesh gets a flat cap on the box face.
+
+σ_thr can be chosen from the masks (`choose_threshold`): of a few levels spread geometrically
+around THRESHOLD, the one whose object mesh's outline best matches the masks in the prompted
+views.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
+import time
 
 import numpy as np
 
@@ -23,6 +29,9 @@ from fignetctl.errors import FignetError
 
 log = logging.getLogger(__name__)
 
+THRESHOLD = 50.0
+"""σ_thr (1 / world unit) when it is not chosen from masks, and where the search for it is centred."""
+
 
 @dataclasses.dataclass(frozen=True)
 class ExtractionSettings:
@@ -30,8 +39,20 @@ class ExtractionSettings:
 
     resolution: int = 96
     """Grid vertices along the longest side of the box (voxels are cubic)."""
-    threshold: float = 50.0
+    threshold: float = THRESHOLD
     """σ_thr (1 / world unit): the iso-level of marching cubes."""
+    auto_threshold: bool = False
+    """Choose σ_thr from the masks (`choose_threshold`); `threshold` is then the centre of the
+    search, the level of the visual hull (`consistent_box`), and σ_thr when there are no masks."""
+    threshold_factors: tuple = (0.25, 0.5, 1.0, 2.0, 4.0)
+    """The levels `choose_threshold` tries first, as factors of `threshold`; the best one's two
+    geometric midpoints with its neighbours are tried next."""
+    threshold_extensions: int = 3
+    """When the best of those is the lowest or highest, up to this many more levels are tried
+    past it (at the ladder's ratio), while the best stays at the end."""
+    threshold_tolerance: float = 0.01
+    """A level is chosen over the one nearer `threshold` only when its median outline IoU is
+    higher by more than this (closer scores are a tie, not evidence)."""
     faces: int = 1000
     """n_f: faces of each mesh after quadric decimation (0: no decimation)."""
     smoothing: float = 0.5
@@ -234,9 +255,10 @@ def signed_volume(vertices, faces):
     )
 
 
-def keep_large_components(vertices, faces, keep_fraction=0.1):
+def keep_large_components(vertices, faces, keep_fraction=0.1, log_level=logging.INFO):
     """Drop connected components whose |volume| (area for open pieces) is below `keep_fraction`
-    of the largest's; each kept component faces outward. Returns a trimesh.Trimesh."""
+    of the largest's; each kept component faces outward (logged at `log_level`). Returns a
+    trimesh.Trimesh."""
     import trimesh
 
     mesh = trimesh.Trimesh(vertices, faces, process=True)
@@ -250,7 +272,7 @@ def keep_large_components(vertices, faces, keep_fraction=0.1):
     for part in kept:
         if signed_volume(part.vertices, part.faces) < 0:
             part.invert()
-    log.info("kept %d of %d connected components", len(kept), len(parts))
+    log.log(log_level, "kept %d of %d connected components", len(kept), len(parts))
     return trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
 
 
@@ -267,12 +289,9 @@ def decimate(mesh, faces):
     return simplified
 
 
-def mesh_from_density(density, lower, upper, settings: ExtractionSettings, exclude=None):
-    """The decimated surface of `density` inside the box (lower, upper).
-
-    exclude : optional (2, 3) box whose density is set to zero (the object, for the environment)
-    returns trimesh.Trimesh in world units
-    """
+def density_grid(density, lower, upper, settings: ExtractionSettings, exclude=None):
+    """(values (X, Y, Z), axes): `density` sampled on the box's grid at `resolution`, blurred
+    by `smoothing` voxels, zero in the box `exclude` ((2, 3) or None)."""
     axes, _ = grid_axes(lower, upper, settings.resolution)
     values = sample_density(density, axes)
     if settings.smoothing > 0:
@@ -282,9 +301,121 @@ def mesh_from_density(density, lower, upper, settings: ExtractionSettings, exclu
     if exclude is not None:
         inside = [(a >= exclude[0][i]) & (a <= exclude[1][i]) for i, a in enumerate(axes)]
         values[np.ix_(*inside)] = 0.0
+    return values, axes
+
+
+def mesh_from_grid(values, axes, settings: ExtractionSettings, log_level=logging.INFO):
+    """The decimated surface at `threshold` of a `density_grid`."""
     vertices, faces = marching_cubes(values, axes, settings.threshold)
-    mesh = keep_large_components(vertices, faces, settings.keep_fraction)
+    mesh = keep_large_components(vertices, faces, settings.keep_fraction, log_level)
     return decimate(mesh, settings.faces)
+
+
+def mesh_from_density(density, lower, upper, settings: ExtractionSettings, exclude=None):
+    """The decimated surface of `density` inside the box (lower, upper).
+
+    exclude : optional (2, 3) box whose density is set to zero (the object, for the environment)
+    returns trimesh.Trimesh in world units
+    """
+    return mesh_from_grid(*density_grid(density, lower, upper, settings, exclude), settings)
+
+
+# -- σ_thr from the masks ----------------------------------------------------------------------
+
+SCORE_FACES = 1000
+"""Candidate meshes are decimated to at most this many faces before their outlines are drawn
+(the outline hardly changes, and drawing costs time per face)."""
+
+
+@dataclasses.dataclass
+class ThresholdChoice:
+    """Result of `choose_threshold`: the level, each tried level's median outline IoU (None
+    where it gives no surface), and the seconds the search took."""
+
+    threshold: float
+    scores: dict
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {
+            "threshold": self.threshold,
+            "scores": {
+                f"{level:g}": None if score is None else round(score, 3)
+                for level, score in sorted(self.scores.items())
+            },
+            "seconds": round(self.seconds, 2),
+        }
+
+
+def choose_threshold(density, box, views, settings: ExtractionSettings) -> ThresholdChoice:
+    """σ_thr from the masks: the level whose object mesh best matches them.
+
+    Each level of `threshold` × `threshold_factors` is meshed as `extract_object` meshes the
+    object (the box cut at the support found at that level, marching cubes at `resolution`,
+    small parts dropped, decimated to at most SCORE_FACES), drawn into every view
+    (`silhouette`) and scored by the median over the views of its outline's IoU with the mask.
+    While the best is the lowest or highest level, the ladder goes on past it (at most
+    `threshold_extensions` levels); then the geometric midpoints between the best level and its
+    neighbours are tried. The best
+    score wins; scores within `threshold_tolerance` of it are a tie, won by the level nearest
+    `threshold` (in ratio). The density is sampled once per box, so a level costs a marching
+    cubes, a decimation and the drawing. FignetError when no level gives a surface.
+
+    box : (2, 3) the object's box V_o; views : the prompted or masked views (their masks set)
+    """
+    started = time.perf_counter()
+    grids, scores = {}, {}
+    faces = min(settings.faces or SCORE_FACES, SCORE_FACES)
+
+    def score(level):
+        trial = dataclasses.replace(settings, threshold=float(level), faces=faces)
+        lower, upper, _ = cut_at_support(density, box, trial)
+        key = (lower.tobytes(), upper.tobytes())
+        if key not in grids:
+            grids[key] = density_grid(density, lower, upper, trial)
+        try:
+            mesh = mesh_from_grid(*grids[key], trial, logging.DEBUG)
+        except FignetError:
+            return None
+        return float(np.median(list(mask_agreement(mesh, views).values())))
+
+    ladder = [settings.threshold * factor for factor in sorted(settings.threshold_factors)]
+    for level in ladder:
+        scores[level] = score(level)
+    for _ in range(settings.threshold_extensions):  # the best at an end: go on past it
+        best = _best_level(scores, settings)
+        if best not in (ladder[0], ladder[-1]) or len(ladder) < 2:
+            break
+        level = ladder[0] ** 2 / ladder[1] if best == ladder[0] else ladder[-1] ** 2 / ladder[-2]
+        scores[level] = score(level)
+        ladder = sorted(scores)
+    best = _best_level(scores, settings)
+    ladder = sorted(scores)
+    position = ladder.index(best)
+    for neighbour in ladder[max(position - 1, 0) : position] + ladder[position + 1 : position + 2]:
+        middle = float(f"{math.sqrt(best * neighbour):.3g}")  # as printed
+        scores[middle] = score(middle)
+    best = _best_level(scores, settings)
+    seconds = time.perf_counter() - started
+    log.info(
+        "threshold %.4g chosen from the masks in %.1f s (median outline IoU %.3f)",
+        best,
+        seconds,
+        scores[best],
+    )
+    return ThresholdChoice(best, scores, seconds)
+
+
+def _best_level(scores, settings: ExtractionSettings):
+    valid = {level: value for level, value in scores.items() if value is not None}
+    if not valid:
+        raise FignetError(
+            f"no density threshold from {min(scores):.3g} to {max(scores):.3g} gives a surface in the "
+            "object's box; check the prompts or the masks, or give the `threshold`"
+        )
+    top = max(valid.values())
+    tied = [level for level, value in valid.items() if value >= top - settings.threshold_tolerance]
+    return min(tied, key=lambda level: (abs(math.log(level / settings.threshold)), level))
 
 
 # -- the whole extraction ----------------------------------------------------------------------
@@ -592,27 +723,49 @@ def _pixels(points, view, shape):
 
 def silhouette(vertices, faces, view, shape) -> np.ndarray:
     """(H, W) bool: the pixels whose centre a mesh (world vertices (V, 3), triangles (F, 3))
-    covers in the view; triangles with a corner behind the camera are left out."""
+    covers in the view; triangles with a corner behind the camera are left out. Most triangles
+    (those whose pixel box is no wider than 95 % of them, at most 32 px) are drawn in batches,
+    the others one by one."""
     image, depth = pinhole.project(view.K, view.c2w, vertices)
     faces = np.asarray(faces)
+    triangles = image[faces[(depth[faces] > 1e-9).all(axis=1)]]
+    low = np.maximum(np.floor(triangles.min(1) - pinhole.PIXEL_CENTRE), 0).astype(int)
+    high = np.minimum(np.ceil(triangles.max(1) - pinhole.PIXEL_CENTRE), [shape[1] - 1, shape[0] - 1]).astype(
+        int
+    )
+    drawn = np.all(high >= low, axis=1)
+    widths = (high - low).max(axis=1) + 1
+    tile = int(np.clip(np.percentile(widths[drawn], 95), 1, 32)) if drawn.any() else 1
+    small = drawn & (widths <= tile)
     covered = np.zeros(shape, bool)
-    for triangle in image[faces[(depth[faces] > 1e-9).all(axis=1)]]:
-        low = np.maximum(np.floor(triangle.min(0) - pinhole.PIXEL_CENTRE), 0).astype(int)
-        high = np.minimum(
-            np.ceil(triangle.max(0) - pinhole.PIXEL_CENTRE), [shape[1] - 1, shape[0] - 1]
-        ).astype(int)
-        if np.any(high < low):
-            continue
-        v, u = np.mgrid[low[1] : high[1] + 1, low[0] : high[0] + 1] + pinhole.PIXEL_CENTRE
-        sides = [
-            (b[0] - a[0]) * (v - a[1]) - (b[1] - a[1]) * (u - a[0])
-            for a, b in ((triangle[0], triangle[1]), (triangle[1], triangle[2]), (triangle[2], triangle[0]))
-        ]
-        inside = ((sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)) | (
-            (sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0)
-        )
-        covered[low[1] : high[1] + 1, low[0] : high[0] + 1] |= inside
+    steps, chunk = np.arange(tile), max(2**20 // tile**2, 1)
+    for start in range(0, int(small.sum()), chunk):
+        part = slice(start, start + chunk)
+        corners, first, last = triangles[small][part], low[small][part], high[small][part]
+        u = (first[:, 0, None, None] + steps[None, None, :]).repeat(tile, 1)
+        v = (first[:, 1, None, None] + steps[None, :, None]).repeat(tile, 2)
+        inside = _covers(corners[:, None, None], u + pinhole.PIXEL_CENTRE, v + pinhole.PIXEL_CENTRE)
+        inside &= (u <= last[:, 0, None, None]) & (v <= last[:, 1, None, None])
+        covered[v[inside], u[inside]] = True
+    for triangle, first, last in zip(triangles[drawn & ~small], low[drawn & ~small], high[drawn & ~small]):
+        v, u = np.mgrid[first[1] : last[1] + 1, first[0] : last[0] + 1] + pinhole.PIXEL_CENTRE
+        covered[first[1] : last[1] + 1, first[0] : last[0] + 1] |= _covers(triangle, u, v)
     return covered
+
+
+def _covers(triangle, u, v):
+    """Whether the points (u, v) lie in the triangle (..., 3, 2) (edges included, either winding)."""
+    sides = [
+        (b[..., 0] - a[..., 0]) * (v - a[..., 1]) - (b[..., 1] - a[..., 1]) * (u - a[..., 0])
+        for a, b in (
+            (triangle[..., 0, :], triangle[..., 1, :]),
+            (triangle[..., 1, :], triangle[..., 2, :]),
+            (triangle[..., 2, :], triangle[..., 0, :]),
+        )
+    ]
+    return ((sides[0] >= 0) & (sides[1] >= 0) & (sides[2] >= 0)) | (
+        (sides[0] <= 0) & (sides[1] <= 0) & (sides[2] <= 0)
+    )
 
 
 def mask_agreement(mesh, views) -> dict:
@@ -636,7 +789,8 @@ def check_mask_agreement(agreement: dict, settings: ExtractionSettings) -> None:
         raise FignetError(
             f"the mesh does not match the masks (outline IoU {median:.2f} in the median view, "
             f"{agreement[worst]:.2f} in {worst}; at least {settings.min_mask_iou} needed): the density threshold "
-            f"({settings.threshold:g}) may cut the object apart or merge it with its surroundings, or the "
+            f"({settings.threshold:g}{', the best of those tried' if settings.auto_threshold else ''}) may cut "
+            "the object apart or merge it with its surroundings, or the "
             "prompts may sit on different objects; look at the masks and change one or the other"
         )
     for name, value in agreement.items():

@@ -18,6 +18,7 @@ from fignetctl.core.mesh_extraction import (
     ExtractionSettings,
     View,
     check_mask_agreement,
+    choose_threshold,
     consistent_box,
     extract_object,
     mask_agreement,
@@ -64,12 +65,18 @@ def run_extraction(
     else:
         views = _masked_views(inputs, cameras, model, segmentation)
         box = consistent_box(model.density, views, settings)
+    settings, threshold = _threshold(model.density, box, views, settings)
     extraction = extract_object(model.density, box, settings)
     agreement = {
         name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
     }
     check_mask_agreement(agreement, settings)
-    checks = {"mask_iou": agreement, "watertight": bool(extraction.object_mesh.is_watertight)}
+    checks = {
+        "mask_iou": agreement,
+        "watertight": bool(extraction.object_mesh.is_watertight),
+        "threshold": settings.threshold,
+        "threshold_choice": threshold,
+    }
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
     provenance = stamp(
         nerf=inputs.nerf,
@@ -94,6 +101,19 @@ def run_extraction(
         "provenance": provenance,
         "seconds": time.perf_counter() - started,
     }
+
+
+def _threshold(density, box, views, settings: ExtractionSettings):
+    """(settings with σ_thr set, how it was set): chosen from the masks when `auto_threshold`
+    and there are masks (`choose_threshold`), else `threshold` as it is."""
+    if not settings.auto_threshold:
+        return settings, {"source": "given"}
+    if not views:
+        log.info("no masks to choose the threshold from: using %g", settings.threshold)
+        return settings, {"source": "default (no masks to choose it from)"}
+    choice = choose_threshold(density, box, views, settings)
+    search = {key: value for key, value in choice.to_dict().items() if key != "threshold"}
+    return dataclasses.replace(settings, threshold=choice.threshold), {"source": "masks", **search}
 
 
 def _masked_views(inputs, cameras, model, segmentation):

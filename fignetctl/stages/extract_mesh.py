@@ -25,7 +25,12 @@ class Settings:
         None, "The object's box V_o in world units, instead of masks.", metavar="X0,Y0,Z0,X1,Y1,Z1"
     )
     resolution: int = setting(96, "Grid vertices along the box's longest side.", low=8, high=512)
-    threshold: float = setting(50.0, "Density threshold σ_thr (1 / world unit).", low=0, low_open=True)
+    threshold: str = setting(
+        "auto",
+        "Density threshold σ_thr (1 / world unit), or auto: the level whose mesh best matches the "
+        "masks (with --box: 50).",
+        metavar="auto|NUMBER",
+    )
     faces: int = setting(1000, "Faces n_f after decimation (0: none).", low=0, high=10**6)
     padding: float = setting(0.1, "V_o grows by this fraction of its longest side.", low=0, high=1)
     max_size: float = setting(
@@ -55,9 +60,11 @@ def run(
     `cameras` (cameras.npz; images from `images`, by default images/ beside or above it). The
     object is given by exactly one of: `settings.prompt` or a prompts.json (`prompts`, with
     `settings.object`), a folder of user `masks`, or `settings.box`; `depth` (depth.npz) can
-    replace NeRF depth. Writes object.obj, environment.obj, volume.npz and masks/ into the
-    folder `output`, and the --json summary. Returns the summary with a one-line `message`."""
-    from fignetctl.core.mesh_extraction import ExtractionSettings
+    replace NeRF depth. `settings.threshold` "auto" chooses σ_thr from the masks
+    (`mesh_extraction.choose_threshold`; with a box: THRESHOLD), a number sets it. Writes
+    object.obj, environment.obj, volume.npz and masks/ into the folder `output`, and the --json
+    summary (with `threshold` and `threshold_choice`). Returns the summary with a one-line `message`."""
+    from fignetctl.core.mesh_extraction import THRESHOLD, ExtractionSettings
     from fignetctl.core.object_extraction import ExtractionInputs, run_extraction
     from fignetctl.core.segmentation import SegmentationSettings
 
@@ -66,10 +73,12 @@ def run(
     if sum(given) != 1:
         raise SettingError("give exactly one of --prompt/--prompts, --masks or --box")
     _check_box(settings.box)
+    threshold = parse_threshold(settings.threshold)
     out = Path(output)
     extraction_settings = ExtractionSettings(
         resolution=settings.resolution,
-        threshold=settings.threshold,
+        threshold=THRESHOLD if threshold == "auto" else threshold,
+        auto_threshold=threshold == "auto",
         faces=settings.faces,
         padding=settings.padding,
         passive_margin=settings.passive_margin,
@@ -95,6 +104,19 @@ def run(
     return {**summary, "message": _message(summary)}
 
 
+def parse_threshold(value):
+    """`threshold` as "auto" or a positive finite float (a number or its text); else SettingError."""
+    if isinstance(value, str) and value.strip().lower() == "auto":
+        return "auto"
+    try:
+        number = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError, OverflowError):
+        number = math.nan
+    if not (math.isfinite(number) and number > 0):
+        raise SettingError(f"`threshold` {value!r}: give auto or a positive finite number (1 / world unit)")
+    return number
+
+
 def _check_box(box) -> None:
     """A box is 6 finite numbers within ±1e6 (as --box parses them)."""
     if box is None:
@@ -117,6 +139,20 @@ def _message(summary) -> str:
     )
     return (
         f"object: {summary['object_faces']} faces, {summary['object_size']} world units"
-        f"{'' if summary['watertight'] else ' (not watertight)'}{outline}; environment: "
-        f"{summary['environment_faces']} faces; {summary['seconds']:.1f} s"
+        f"{'' if summary['watertight'] else ' (not watertight)'}; {_threshold_note(summary)}{outline}; "
+        f"environment: {summary['environment_faces']} faces; {summary['seconds']:.1f} s"
+    )
+
+
+def _threshold_note(summary) -> str:
+    """How σ_thr was set: "threshold 35.4 (auto: ...)"."""
+    choice, threshold = summary["threshold_choice"], f"threshold {summary['threshold']:g}"
+    if choice["source"] == "given":
+        return threshold
+    if choice["source"] != "masks":
+        return f"{threshold} (auto: no masks to choose it from, so the default)"
+    best = choice["scores"][f"{summary['threshold']:g}"]
+    return (
+        f"{threshold} (auto: best median outline IoU {best:.2f} of {len(choice['scores'])} levels "
+        f"{min(map(float, choice['scores'])):g}-{max(map(float, choice['scores'])):g}, {choice['seconds']:.1f} s)"
     )

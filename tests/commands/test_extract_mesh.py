@@ -48,11 +48,21 @@ def test_prompts_json_to_meshes(capture, tmp_path):
         "200",
         "--resolution",
         "48",
+        "--json",
+        tmp_path / "summary.json",
         "-o",
         tmp_path / "out",
     )
     assert result.exit_code == 0, result.output
     volume = read_volume(tmp_path / "out" / "volume.npz")
+    # the threshold was chosen from the masks (auto), printed and recorded
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    choice = summary["threshold_choice"]
+    assert choice["source"] == "masks" and 6 <= len(choice["scores"]) <= 10 and choice["seconds"] > 0
+    assert choice["scores"][f"{summary['threshold']:g}"] == max(v for v in choice["scores"].values() if v)
+    assert f"threshold {summary['threshold']:g} (auto: best median outline IoU" in result.output
+    assert volume.settings["threshold"] == summary["threshold"]
+    assert volume.settings["threshold_choice"] == choice and volume.settings["auto_threshold"]
     obj = trimesh.load(tmp_path / "out" / "object.obj", force="mesh")
     truth = trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh")
     assert len(obj.faces) <= 200 and obj.volume > 0
@@ -86,6 +96,8 @@ def test_prompts_json_to_meshes(capture, tmp_path):
         (["--box", "0.9,0.9,0.15,1.0,1.0,0.19"], "no density above the threshold"),
         (["--box", "0,0,0,1"], "6 comma-separated"),
         (["--box", "0,0,0,1,1,1", "--prompt", "0:1,1"], "exactly one of"),
+        (["--box", "0,0,0,1,1,1", "--threshold", "-1"], "--threshold '-1': give auto or a positive"),
+        (["--box", "0,0,0,1,1,1", "--threshold", "nan"], "--threshold 'nan': give auto or a positive"),
     ],
 )
 def test_bad_input_is_one_line(capture, tmp_path, args, message):
@@ -148,3 +160,36 @@ def test_user_masks_from_ground_truth(capture, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert (tmp_path / "out" / "object.obj").is_file()
+
+
+def test_a_box_has_no_masks_to_choose_the_threshold_and_a_given_one_is_used(capture, tmp_path):
+    import trimesh
+
+    name = json.loads((capture / "prompts.json").read_text())["objects"][0]["name"]
+    truth = trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh")
+    box = ",".join(f"{x:.3f}" for x in np.concatenate([truth.bounds[0] - 0.01, truth.bounds[1] + 0.01]))
+    summaries = {}
+    for threshold in ("auto", "50", "120"):
+        args = ["--box", box, "--resolution", "32", "--faces", "100", "--threshold", threshold]
+        result = run(
+            "extract-mesh",
+            capture / "nerf.pt",
+            "--cameras",
+            capture / "ground_truth" / "cameras.npz",
+            *args,
+            "--json",
+            tmp_path / f"{threshold}.json",
+            "-o",
+            tmp_path / threshold,
+        )
+        assert result.exit_code == 0, result.output
+        summaries[threshold] = json.loads((tmp_path / f"{threshold}.json").read_text())
+        summaries[threshold]["message"] = result.output
+    assert summaries["auto"]["threshold"] == 50.0
+    assert summaries["auto"]["threshold_choice"] == {"source": "default (no masks to choose it from)"}
+    assert "threshold 50 (auto: no masks to choose it from, so the default)" in summaries["auto"]["message"]
+    assert summaries["120"]["threshold"] == 120.0 and summaries["120"]["threshold_choice"] == {
+        "source": "given"
+    }
+    assert "threshold 120;" in summaries["120"]["message"]
+    assert summaries["50"]["object_size"] == summaries["auto"]["object_size"]

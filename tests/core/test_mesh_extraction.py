@@ -332,6 +332,22 @@ def test_a_meshs_silhouette_is_the_pixels_whose_rays_hit_it():
         assert (drawn != hit).sum() <= 2  # pixel centres on an edge may go either way
 
 
+def test_a_fine_meshs_silhouette_drawn_in_batches_is_the_pixels_whose_rays_hit_it():
+    """Small triangles are drawn in batches (`silhouette`): the same pixels as ray casting."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.2)  # 1280 faces, a few pixels each
+    for eye in ([0.8, -0.5, 0.6], [0.0, -0.9, 0.2]):
+        view = _box_view(eye, (160, 120))
+        origins, directions = pinhole.pixel_rays(view.K, view.c2w, 160, 120)
+        hit = ball.ray.intersects_any(origins.reshape(-1, 3), directions.reshape(-1, 3)).reshape(120, 160)
+        drawn = mx.silhouette(ball.vertices, ball.faces, view, hit.shape)
+        assert hit.sum() > 1000
+        assert (drawn != hit).sum() <= 3
+
+
 def test_a_mesh_that_misses_its_masks_is_refused_and_a_poor_one_warned(caplog):
     import trimesh
 
@@ -351,3 +367,59 @@ def test_a_mesh_that_misses_its_masks_is_refused_and_a_poor_one_warned(caplog):
     moved.apply_translation([0.25, 0, 0])  # beside what was prompted
     with pytest.raises(FignetError, match="does not match the masks"):
         mx.check_mask_agreement(mx.mask_agreement(moved, views), settings)
+
+
+def _sphere_views(radius):
+    """Three views of a sphere of `radius` at the origin, each masked with its outline."""
+    import trimesh
+
+    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    views = [_box_view(eye) for eye in ([0.8, -0.5, 0.6], [0.0, -0.9, 0.2], [-0.6, 0.5, 0.5])]
+    for view in views:
+        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+    return views
+
+
+def test_the_threshold_is_chosen_where_the_mesh_matches_the_masks():
+    """The field's surface sits at σ = 200 (4× the default): the masks pick that level, and its
+    mesh matches them and the sphere's size where a fixed low threshold's (12.5) is 47 % too wide."""
+    density = sphere([0, 0, 0], 0.2, value=200.0)  # σ = 200 at radius 0.2, > 0 out to 0.3
+    views = _sphere_views(0.2)
+    box = np.array([[-0.32] * 3, [0.32] * 3])
+    settings = mx.ExtractionSettings(resolution=40, faces=300, auto_threshold=True)
+    choice = mx.choose_threshold(density, box, views, settings)
+    assert choice.threshold == pytest.approx(200.0, rel=0.05), choice
+    # 12.5 ... 200, then 400 past the end (worse), then the midpoints 141 and 283
+    assert sorted(choice.scores) == [12.5, 25.0, 50.0, 100.0, 141.0, 200.0, 283.0, 400.0]
+    assert choice.seconds > 0
+    assert choice.scores[200.0] == max(s for s in choice.scores.values() if s is not None)
+    assert choice.to_dict()["scores"]["200"] == round(choice.scores[200.0], 3)
+
+    def median_iou(mesh):
+        return float(np.median(list(mx.mask_agreement(mesh, views).values())))
+
+    chosen = mx.mesh_from_density(density, *box, dataclasses.replace(settings, threshold=choice.threshold))
+    bad = mx.mesh_from_density(density, *box, dataclasses.replace(settings, threshold=12.5))
+    assert median_iou(chosen) > 0.9 > 0.7 > median_iou(bad)
+    np.testing.assert_allclose(chosen.extents, 0.4, rtol=0.05)
+    assert bad.extents.min() > 0.5
+
+
+def test_a_step_in_density_is_meshed_at_its_edge_and_ties_keep_the_default():
+    """A solid ball (σ 1000 inside, 0 outside): marching cubes puts the surface a level's
+    fraction of a voxel out from the last solid vertex, so the outline fits best at the step's
+    middle (500) and the highest levels win. Scores within the tolerance are a tie, kept at the
+    default; a field with nothing in the box is an error."""
+
+    def solid_ball(points):
+        return np.where(np.linalg.norm(np.asarray(points), axis=1) <= 0.2, 1000.0, 0.0)
+
+    views = _sphere_views(0.2)
+    box = np.array([[-0.3] * 3, [0.3] * 3])
+    settings = mx.ExtractionSettings(resolution=40, faces=300, auto_threshold=True)
+    choice = mx.choose_threshold(solid_ball, box, views, settings)
+    assert choice.threshold >= 283 and choice.scores[choice.threshold] > choice.scores[50.0] + 0.05
+    assert mx._best_level({25.0: 0.9, 50.0: 0.895, 100.0: 0.905, 200.0: 0.8}, settings) == 50.0
+    assert mx._best_level({25.0: 0.9, 50.0: 0.85, 100.0: 0.915, 200.0: None}, settings) == 100.0
+    with pytest.raises(FignetError, match="no density threshold from 12.5 to 200 gives a surface"):
+        mx.choose_threshold(lambda p: np.zeros(len(p)), box, views, settings)

@@ -348,7 +348,8 @@ def to_uint8(rgb) -> np.ndarray:
 
 
 class _RerunLog:
-    """Frames, camera and the object's path in a rerun recording (timeline "frame")."""
+    """Frames, camera and the object's path in a rerun recording (timeline "frame"), and the
+    mp4 the frames went into."""
 
     def __init__(self, rr, rec, motion: ObjectMotion, steps):
         self.rr, self.rec = rr, rec
@@ -369,6 +370,20 @@ class _RerunLog:
             "world/camera", rr.Pinhole(image_from_camera=np.asarray(K), width=int(width), height=int(height))
         )
         rec.log("world/camera/image", rr.Image(image))
+
+    def video(self, path) -> int:
+        """The H.264 mp4 itself (static at "video"), its frame k shown at frame k of the timeline;
+        returns the number of frames rerun's decoder found in it."""
+        rr = self.rr
+        asset = rr.AssetVideo(path=path)
+        self.rec.log("video", asset, static=True)
+        timestamps = asset.read_frame_timestamps_nanos()
+        self.rec.send_columns(
+            "video",
+            indexes=[rr.TimeColumn("frame", sequence=np.arange(len(timestamps)))],
+            columns=rr.VideoFrameReference.columns_nanos(timestamps),
+        )
+        return len(timestamps)
 
 
 def write_rerender(
@@ -421,6 +436,8 @@ def write_rerender(
             if log:
                 log.log(index, step, camera, image)
         writer.close()
+        if log:
+            log.video(tmp_video)
     return {
         "frames": len(steps),
         "width": width,

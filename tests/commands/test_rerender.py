@@ -135,6 +135,9 @@ def test_orbit_every_trace_rerun_and_scaled_size(inputs, tmp_path):
     assert recording.rows("world/camera/image") == recording.rows("world/object") == 2
     assert {"Pinhole:image_from_camera", "Transform3D:mat3x3"} <= recording.components("world/camera")
     assert recording.entities["world/trace"].static
+    # The H.264 mp4 itself, which rerun's decoder reads: one frame reference per frame.
+    assert recording.entities["video"].static and "AssetVideo:blob" in recording.components("video")
+    assert recording.times("video", "frame") == [0, 1]
 
 
 def test_existing_output_needs_overwrite(inputs, tmp_path):

@@ -96,6 +96,21 @@ def mark_pareto(result: dict) -> dict:
     return result
 
 
+def rollout_sweep_result(knob, setting_name, points, notes, config, data_path) -> dict:
+    """make_result for a knob measured by rollouts: seconds per step against translation RMSE."""
+    return make_result(
+        knob,
+        setting_name,
+        "seconds per rollout step",
+        f"translation RMSE after {config.steps} steps (m)",
+        points,
+        ROLLOUT_METHOD,
+        notes,
+        config=config,
+        inputs=file_inputs(data_path),
+    )
+
+
 def make_result(
     knob,
     setting_name,
@@ -421,17 +436,7 @@ def sweep_decimation(data_path, config: TradeoffSettings, on_progress=None, face
         "(docs/simulator.md: level with a constant-velocity baseline); settings other than 256 are out of its training distribution",
         "ground truth: PyBullet on the full meshes (convex decomposition, as make-dataset), so no setting matches it by construction",
     ]
-    return make_result(
-        "decimation",
-        "faces per object n_f",
-        "seconds per rollout step",
-        f"translation RMSE after {config.steps} steps (m)",
-        points,
-        ROLLOUT_METHOD,
-        notes,
-        config=config,
-        inputs=file_inputs(data_path),
-    )
+    return rollout_sweep_result("decimation", "faces per object n_f", points, notes, config, data_path)
 
 
 def sweep_architecture(data_path, config: TradeoffSettings, on_progress=None) -> dict:
@@ -469,17 +474,7 @@ def sweep_architecture(data_path, config: TradeoffSettings, on_progress=None) ->
         "bundled checkpoints: FIGNet* 7000 training steps, FIGNet 4250 (docs/simulator.md); both weak",
         f"memory and train-step figures: bench-memory (benchmark.run_benchmark), {config.trajectories} (trajectory, frame) pairs × {config.repeats} repeats",
     ]
-    return make_result(
-        "architecture",
-        "FIGNet vs FIGNet*",
-        "seconds per rollout step",
-        f"translation RMSE after {config.steps} steps (m)",
-        points,
-        ROLLOUT_METHOD,
-        notes,
-        config=config,
-        inputs=file_inputs(data_path),
-    )
+    return rollout_sweep_result("architecture", "FIGNet vs FIGNet*", points, notes, config, data_path)
 
 
 def face_face_edges(simulator, scenes, every=5) -> list[int]:
@@ -519,17 +514,7 @@ def sweep_collision_radius(data_path, config: TradeoffSettings, on_progress=None
         "(out of distribution), so its error away from 0.2 m says as much about the training as about the radius",
         "face_face_edges: hyper-edges (both directions) of the graph of every 5th ground-truth frame",
     ]
-    return make_result(
-        "collision-radius",
-        "collision radius (m)",
-        "seconds per rollout step",
-        f"translation RMSE after {config.steps} steps (m)",
-        points,
-        ROLLOUT_METHOD,
-        notes,
-        config=config,
-        inputs=file_inputs(data_path),
-    )
+    return rollout_sweep_result("collision-radius", "collision radius (m)", points, notes, config, data_path)
 
 
 def one_step_errors(simulator, scenes, frames_per_trajectory, seed) -> tuple[list, list, list]:
@@ -776,17 +761,7 @@ def sweep_device(data_path, config: TradeoffSettings, on_progress=None) -> dict:
         if "cuda" in devices
         else [f"cuda: {NO_GPU} (torch.cuda.is_available() is False); only the CPU was measured"]
     )
-    result = make_result(
-        "device",
-        "torch device",
-        "seconds per rollout step",
-        f"translation RMSE after {config.steps} steps (m)",
-        points,
-        ROLLOUT_METHOD,
-        notes,
-        config=config,
-        inputs=file_inputs(data_path),
-    )
+    result = rollout_sweep_result("device", "torch device", points, notes, config, data_path)
     result["cuda"] = torch.cuda.get_device_name(0) if "cuda" in devices else NO_GPU
     return result
 

@@ -21,7 +21,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
 import tests.stability.test_learned_rollouts as cases  # noqa: E402
-from fignetctl.core.model.apply import load_model, rollout_file  # noqa: E402
+from fignetctl.core.model.apply import load_model, rollout_trajectory  # noqa: E402
 from fignetctl.core.trajectory import read_trajectories, write_trajectories  # noqa: E402
 
 PAPER = {"dynamic": (0.5, 0.5), "static": (0.5, 0.3)}  # friction, restitution (paper's FIGNet* table)
@@ -44,8 +44,8 @@ def measure(model, folder, paper):
         return with_properties(cases.scene_file(folder / name, bodies, statics), paper)
 
     def roll(path, steps, **options):
-        return rollout_file(
-            model, path, None, steps, free_flight=True, keep_out=True, **options
+        return rollout_trajectory(
+            model, read_trajectories(path), steps, free_flight=True, keep_out=True, **options
         ).trajectories["0"]
 
     def deepest(trajectory, meshes, every=1):

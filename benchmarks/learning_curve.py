@@ -25,8 +25,9 @@ import os
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.model.apply import evaluate_file
+from fignetctl.core.model.apply import evaluate_trajectories
 from fignetctl.core.model.checkpoint import load_checkpoint, read_checkpoint_payload
+from fignetctl.core.trajectory import read_trajectories
 
 
 def training_history(path):
@@ -74,7 +75,9 @@ def held_out_points(stages, snapshot_globs, test_path, max_trajectories, known=N
             if known and (index, step) in known:
                 points.append(known[(index, step)])
                 continue
-            metrics = evaluate_file(load_checkpoint(path), test_path, max_trajectories)["metrics"]["model"]
+            metrics = evaluate_trajectories(
+                load_checkpoint(path), read_trajectories(test_path), max_trajectories
+            )["metrics"]["model"]
             points.append(
                 {
                     "stage": index,

@@ -33,20 +33,21 @@ class Settings:
 
 def run(data, output=None, settings: Settings = Settings(), model=None, progress=None) -> dict:
     """Roll out the model file (or bundled model name) `model` from frames 0-1 of every
-    trajectory of the file `data` and compare (fignetctl.core.model.apply.evaluate_file); the
+    trajectory of the file `data` and compare (fignetctl.core.model.apply.evaluate_trajectories); the
     metrics, with the model's name and the inputs' hashes, are written to the json file
     `output` atomically when given, and returned."""
     import json
 
-    from fignetctl.core.model.apply import evaluate_file, load_model
+    from fignetctl.core.model.apply import evaluate_trajectories, load_model
     from fignetctl.core.provenance import INPUTS_KEY, stamp
+    from fignetctl.core.trajectory import read_trajectories
 
     check(settings)
     simulator = load_model(model, resolve_device(settings.device))
     with (progress or no_progress)(unit="trajectory", desc="evaluate") as bar:
-        metrics = evaluate_file(
+        metrics = evaluate_trajectories(
             simulator,
-            data,
+            read_trajectories(data),
             settings.max_trajectories,
             on_scene=lambda _: bar.update(1),
             sleep=settings.sleep,
@@ -54,7 +55,9 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
             keep_out=settings.keep_out,
             with_guards=settings.with_guards,
             ceilings=settings.ceilings,
+            where=str(data),
         )
+    metrics = {"data": str(data), **metrics}
     metrics["model"] = str(model or "fignet-star-movi-b")
     metrics.update(stamp(data=data))
     metrics[INPUTS_KEY]["model"] = simulator.source_sha256

@@ -61,29 +61,33 @@ def run(
     the model's and the scene's hashes. `report` (default: stderr) gets a note when the scene is
     simulated at another scale. A rollout that goes wrong still writes the frames before the failure, then
     raises a FignetError naming the step and object. Returns the summary (also the --json)."""
-    from fignetctl.core.model.apply import load_model, rollout_file
+    from fignetctl.core.model.apply import load_model, rollout_trajectory
     from fignetctl.core.model.rollout import RolloutError
-    from fignetctl.core.provenance import from_strings
+    from fignetctl.core.provenance import INPUTS_KEY, as_strings, file_sha256, from_strings, stamp
+    from fignetctl.core.trajectory import read_trajectories
 
     check(settings)
     sim_scale = parse_sim_scale(settings.sim_scale)
     simulator = load_model(model, resolve_device(settings.device))
+    data = read_trajectories(scene, None if settings.trajectory is None else [settings.trajectory])
     with (progress or no_progress)(total=settings.steps, unit="step", desc="rollout") as bar:
         try:
-            result = rollout_file(
+            result = rollout_trajectory(
                 simulator,
-                scene,
-                settings.trajectory,
+                data,
                 settings.steps,
                 on_step=lambda _: bar.update(1),
                 sim_scale=sim_scale,
                 sleep=settings.sleep,
                 free_flight=settings.free_flight,
                 keep_out=settings.keep_out,
+                where=str(scene),
             )
             error = None
         except RolloutError as failure:
             result, error = failure.partial_file, failure
+    inputs = {"scene": file_sha256(scene), "model": getattr(simulator, "source_sha256", None)}
+    result.attrs.update(as_strings({**stamp(), INPUTS_KEY: {k: v for k, v in inputs.items() if v}}))
     _write(result, output, rerun_path)
     scale = float(result.attrs["sim_scale"])
     if scale != 1.0:

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from fignetctl.core.model.apply import load_model, rollout_file
+from fignetctl.core.model.apply import load_model, rollout_trajectory
 from fignetctl.core.scene_building import ACTIVE, PASSIVE
-from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
+from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, read_trajectories, write_trajectories
 
 pytestmark = pytest.mark.stability
 
@@ -74,7 +74,9 @@ def scene_file(path, bodies, statics=()):
 def roll(model, path, steps, **options):
     """The model's rollout of a scene file, with free flight and the keep-out guard as
     `fignetctl rollout` has them."""
-    result = rollout_file(model, path, None, steps, free_flight=True, keep_out=True, **options)
+    result = rollout_trajectory(
+        model, read_trajectories(path), steps, free_flight=True, keep_out=True, **options
+    )
     trajectory = result.trajectories["0"]
     assert np.isfinite(trajectory.positions).all() and np.isfinite(trajectory.quaternions).all()
     return trajectory

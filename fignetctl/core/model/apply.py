@@ -1,4 +1,5 @@
-"""A model applied to trajectory files: their rollout and evaluation, files in and files out."""
+"""A model applied to trajectories: loading it, rolling a scene out, evaluating it on ground truth
+(arrays in, arrays out; the rollout and evaluate stages read and write the files)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,7 @@ from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_mo
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.model.trained_ranges import outside_ranges
-from fignetctl.core.provenance import INPUTS_KEY, as_strings, file_sha256, stamp
-from fignetctl.core.trajectory import TrajectoryFile, read_trajectories
+from fignetctl.core.trajectory import TrajectoryFile
 from fignetctl.errors import FignetError
 
 log = logging.getLogger(__name__)
@@ -55,18 +55,19 @@ def simulation_time_step(simulator, data, key, where) -> float:
     )
 
 
-def rollout_file(
+def rollout_trajectory(
     simulator,
-    scene_path,
-    trajectory_id,
+    data: TrajectoryFile,
     num_steps,
     on_step=None,
     sim_scale=1.0,
     sleep=False,
     free_flight=False,
     keep_out=False,
+    where="scene",
 ) -> TrajectoryFile:
-    """Roll out one trajectory of a file; a RolloutError carries `partial_file` too.
+    """Roll out the first trajectory of `data` (`where` names it in messages); a RolloutError
+    carries the frames before it as `partial_file` too.
 
     sim_scale : simulate the scene scaled by this factor (or "auto": froude.auto_scale with
         the model's trained_properties) and map the frames back; the result's frame time is then dt / √sim_scale
@@ -80,11 +81,10 @@ def rollout_file(
     """
     from fignetctl.core.model import froude
 
-    data = read_trajectories(scene_path, None if trajectory_id is None else [trajectory_id])
     key = next(iter(data.trajectories))
     if data.trajectories[key].num_frames < 2:
-        raise FignetError(f"{scene_path}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
-    step_dt = simulation_time_step(simulator, data, key, scene_path)
+        raise FignetError(f"{where}: trajectory {key!r} has 1 frame; a rollout needs 2 (t-1 and t)")
+    step_dt = simulation_time_step(simulator, data, key, where)
     trained = getattr(simulator, "trained_properties", None)
     scale = froude.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
     simulated = data
@@ -97,12 +97,7 @@ def rollout_file(
     def result(frames):
         if scale != 1.0:
             frames = froude.unscaled_frames(frames, history, scale)
-        rolled = rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
-        inputs = {"scene": file_sha256(scene_path)}
-        if getattr(simulator, "source_sha256", None):  # a simulator loaded from a model file
-            inputs["model"] = simulator.source_sha256
-        rolled.attrs.update(as_strings({**stamp(), INPUTS_KEY: inputs}))
-        return rolled
+        return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
 
     try:
         frames = rollout(simulator, scene, num_steps, on_step, guards=guards, with_velocities=True)
@@ -150,9 +145,9 @@ def rollout_result(
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
 
-def evaluate_file(
+def evaluate_trajectories(
     simulator,
-    data_path,
+    data: TrajectoryFile,
     max_trajectories=None,
     on_scene=None,
     sleep=False,
@@ -160,18 +155,19 @@ def evaluate_file(
     keep_out=False,
     with_guards=False,
     ceilings=False,
+    where="data",
 ) -> dict:
-    """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of a file;
+    """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of `data` (`where`
+    names it in messages);
     `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping);
     `ceilings` also evaluates PyBullet restarted every frame from each state (core/ceilings.py;
     the file must come from make-dataset)."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
-    data = read_trajectories(data_path)
     keys = list(data.trajectories)[:max_trajectories]
     if simulator.config.dt is not None and not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
         raise FignetError(
-            f"{data_path}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
+            f"{where}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
             "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step"
         )
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
@@ -185,9 +181,8 @@ def evaluate_file(
         references = physics_ceilings(data, stack) if ceilings else None
         results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded, references)
     if not results:
-        raise FignetError(f"{data_path}: no trajectory is long enough for a 50-step or 2-second horizon")
+        raise FignetError(f"{where}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {
-        "data": str(data_path),
         "dt": data.dt,
         "trajectories": len(scenes),
         "sleep": bool(sleep),

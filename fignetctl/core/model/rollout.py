@@ -37,7 +37,7 @@ class RolloutError(FignetError):
         super().__init__(message)
         self.positions = positions
         self.quaternions = quaternions
-        self.partial_file = None  # filled by apply.rollout_file: the frames so far, as a file
+        self.partial_file = None  # filled by apply.rollout_trajectory: the frames so far, as a TrajectoryFile
 
 
 def given_static_pose(scene, frame):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fignetctl.core.model import froude
-from fignetctl.core.model.apply import rollout_file
+from fignetctl.core.model.apply import rollout_trajectory
 from fignetctl.core.model.simulator import SimulatorConfig, free_flight_poses
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from fignetctl.core.transforms import quat_angle_deg, quat_from_axis_angle, quat_multiply
@@ -67,7 +67,7 @@ def test_a_scaled_rollout_is_the_real_motion_at_the_new_frame_time(tmp_path, sca
     dt = 1 / 30
     trajectory = small_throw(tmp_path / "throw.h5", dt=dt)
     simulator = BallisticSimulator(dt)
-    result = rollout_file(simulator, tmp_path / "throw.h5", None, 12, sim_scale=scale)
+    result = rollout_trajectory(simulator, read_trajectories(tmp_path / "throw.h5"), 12, sim_scale=scale)
     assert result.dt == pytest.approx(dt / np.sqrt(scale))
     rolled = result.trajectories["00000"]
     times = (np.arange(14) - 1) * result.dt
@@ -81,7 +81,7 @@ def test_a_scaled_rollout_is_the_real_motion_at_the_new_frame_time(tmp_path, sca
 def test_auto_brings_the_largest_moving_object_to_the_training_size(tmp_path):
     small_throw(tmp_path / "throw.h5", size=0.12)
     simulator = BallisticSimulator(1 / 30)
-    result = rollout_file(simulator, tmp_path / "throw.h5", None, 3, sim_scale="auto")
+    result = rollout_trajectory(simulator, read_trajectories(tmp_path / "throw.h5"), 3, sim_scale="auto")
     assert simulator.sides[0] == pytest.approx(froude.TRAINING_OBJECT_SIDE, rel=1e-6)
     assert result.attrs["sim_scale"] == pytest.approx(froude.TRAINING_OBJECT_SIDE / 0.12)
 

@@ -283,11 +283,13 @@ def velocity_model(tmp_path_factory):
 def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated_size(
     velocity_model, tmp_path, scale
 ):
-    from fignetctl.core.model.apply import rollout_file
+    from fignetctl.core.model.apply import rollout_trajectory
     from fignetctl.core.model.checkpoint import load_checkpoint
 
     model, data = velocity_model
-    result = rollout_file(load_checkpoint(model), data, None, 12, sim_scale=scale, free_flight=True)
+    result = rollout_trajectory(
+        load_checkpoint(model), read_trajectories(data), 12, sim_scale=scale, free_flight=True
+    )
     assert result.dt == pytest.approx((1 / 60) / scale**0.5)
     box = result.trajectories["00000"]
     times = (
@@ -307,19 +309,19 @@ def test_a_rollout_file_carries_velocities_and_maps_them_back_from_the_simulated
 def test_a_velocity_model_steps_at_its_own_time_step_and_a_positions_model_refuses_another(
     velocity_model, tmp_path
 ):
-    from fignetctl.core.model.apply import rollout_file
+    from fignetctl.core.model.apply import rollout_trajectory
     from fignetctl.core.model.checkpoint import load_checkpoint
 
     model, _ = velocity_model
     at_30_fps = write_trajectories(tmp_path / "30fps.h5", box_drop_file(frames=3, dt=1 / 30, height=20.0))
-    result = rollout_file(load_checkpoint(model), at_30_fps, None, 4, free_flight=True)
+    result = rollout_trajectory(load_checkpoint(model), read_trajectories(at_30_fps), 4, free_flight=True)
     assert result.dt == pytest.approx(1 / 60)
     positions_model = load_checkpoint(model)
     positions_model.config = dataclasses.replace(
         positions_model.config, state="positions", network=PRESETS["tiny"]
     )
     with pytest.raises(FignetError, match="give the scene at dt = 0.0166667"):
-        rollout_file(positions_model, at_30_fps, None, 4)
+        rollout_trajectory(positions_model, read_trajectories(at_30_fps), 4)
 
 
 def test_a_copy_with_another_collision_radius_shares_the_weights_but_not_the_graphs():

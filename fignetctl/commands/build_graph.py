@@ -8,15 +8,6 @@ from fignetctl.stages import build_graph as stage
 FILE = click.Path(dir_okay=False)
 
 
-def _option(name, **kwargs):
-    """The option of Settings field `name`, its help and default, with kwargs the generator lacks."""
-    field = stage.Settings.__dataclass_fields__[name]
-    meta = field.metadata
-    return click.option(
-        f"--{name}", default=field.default, metavar=meta["metavar"], help=meta["help"], **kwargs
-    )
-
-
 @click.command("build-graph")
 @click.argument("volume_path", metavar="VOLUME", type=FILE)
 @click.option(
@@ -28,9 +19,9 @@ def _option(name, **kwargs):
 @click.option("-o", "--output", type=FILE, required=True, help="Scene trajectory file (.h5) to write.")
 @options.settings_options(
     stage.Settings,
-    start=_option("start", callback=options.finite_floats(3)),
-    velocity=_option("velocity", callback=options.finite_floats(3)),
-    dt=_option("dt", type=options.FiniteFloatRange(0, min_open=True), show_default="1/30"),
+    start={"callback": options.finite_floats(3)},
+    velocity={"callback": options.finite_floats(3)},
+    dt={"show_default": "1/30"},
 )
 @options.json_option
 @options.overwrite_option

@@ -5,29 +5,23 @@ import click
 from fignetctl.commands import options
 from fignetctl.stages import capture_poses as stage
 
-
-def _path(*decls, folder=False, **kwargs):
-    return click.option(*decls, type=click.Path(file_okay=not folder, dir_okay=folder), **kwargs)
-
-
-def _baseline():
-    meta = stage.Settings.__dataclass_fields__["baseline"].metadata
-    kind = (str, str, options.FiniteFloatRange(0, min_open=True))
-    return click.option("--baseline", type=kind, metavar=meta["metavar"], help=meta["help"])
+PATH = options.path_option
 
 
 @click.command("capture-poses")
-@_path("--images", folder=True, help="Folder of photographs (one size); with --import-*, the ones to check.")
-@_path("--video", help="A video; frames are picked with --every and written to --frames-dir.")
-@_path("--frames-dir", folder=True, help="Video: where the picked frames go.  [default: images/ beside -o]")
-@_path("--import-transforms", help="Poses from a transforms.json (nerfstudio / instant-ngp), not COLMAP.")
-@_path("--import-colmap", folder=True, help="Poses from a COLMAP sparse model folder (.bin or .txt files).")
-@_path("--import-cameras", help="Re-align or convert an existing cameras.npz.")
-@_path("--undistorted-dir", folder=True, help="Distorted --camera-model: the undistorted images' folder.")
-@_path("--keep-colmap", folder=True, help="Keep COLMAP's workspace here: database.db, sparse/0, points.ply.")
-@_path("--export-transforms", help="Also write a transforms.json (OpenGL convention).")
-@_path("-o", "--output", required=True, help="cameras.npz to write.")
-@options.settings_options(stage.Settings, baseline=_baseline())
+@PATH("--images", folder=True, help="Folder of photographs (one size); with --import-*, the ones to check.")
+@PATH("--video", help="A video; frames are picked with --every and written to --frames-dir.")
+@PATH("--frames-dir", folder=True, help="Video: where the picked frames go.  [default: images/ beside -o]")
+@PATH("--import-transforms", help="Poses from a transforms.json (nerfstudio / instant-ngp), not COLMAP.")
+@PATH("--import-colmap", folder=True, help="Poses from a COLMAP sparse model folder (.bin or .txt files).")
+@PATH("--import-cameras", help="Re-align or convert an existing cameras.npz.")
+@PATH("--undistorted-dir", folder=True, help="Distorted --camera-model: the undistorted images' folder.")
+@PATH("--keep-colmap", folder=True, help="Keep COLMAP's workspace here: database.db, sparse/0, points.ply.")
+@PATH("--export-transforms", help="Also write a transforms.json (OpenGL convention).")
+@PATH("-o", "--output", required=True, help="cameras.npz to write.")
+@options.settings_options(
+    stage.Settings, baseline={"type": (str, str, options.FiniteFloatRange(0, min_open=True))}
+)
 @options.rerun_option
 @options.json_option
 @options.overwrite_option

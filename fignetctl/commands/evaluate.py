@@ -21,15 +21,7 @@ from fignetctl.stages import evaluate as stage
     type=click.Path(dir_okay=False),
     help="Write the metrics json here (otherwise to stdout).",
 )
-@options.settings_options(
-    stage.Settings,
-    max_trajectories=click.option(
-        "-n",
-        "--max-trajectories",
-        type=click.IntRange(min=1, max=10**7),
-        help="Evaluate only the first N trajectories.",
-    ),
-)
+@options.settings_options(stage.Settings, max_trajectories={"flags": ("-n",)})
 @options.overwrite_option
 def evaluate(data, model_path, output, overwrite, **settings):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.

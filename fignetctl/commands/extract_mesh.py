@@ -8,27 +8,24 @@ from fignetctl.commands import options
 from fignetctl.stages import extract_mesh as stage
 
 
-def _path(*decls, folder=False, **kwargs):
-    return click.option(*decls, type=click.Path(file_okay=not folder, dir_okay=folder), **kwargs)
-
-
-def _setting(name, **kwargs):
-    meta = stage.Settings.__dataclass_fields__[name].metadata
-    return click.option(f"--{name}", metavar=meta["metavar"], help=meta["help"], **kwargs)
-
-
 @click.command("extract-mesh")
 @click.argument("nerf", type=click.Path(dir_okay=False))
-@_path("--cameras", required=True, help="cameras.npz of the views.")
-@_path("--images", folder=True, help="Image folder.  [default: images/ beside or above cameras.npz]")
-@_path("--prompts", help="prompts.json (fignetctl.prompts, as render-views writes).")
-@_path("--masks", folder=True, help="Folder of user masks: <image stem>.png per view, nonzero = object.")
-@_path("--depth", help="depth.npz (depth (N,H,W), image_names) to use instead of NeRF depth.")
-@_path("-o", "--output", folder=True, required=True, help="Folder for the meshes, volume.npz and masks/.")
+@options.path_option("--cameras", required=True, help="cameras.npz of the views.")
+@options.path_option(
+    "--images", folder=True, help="Image folder.  [default: images/ beside or above cameras.npz]"
+)
+@options.path_option("--prompts", help="prompts.json (fignetctl.prompts, as render-views writes).")
+@options.path_option(
+    "--masks", folder=True, help="Folder of user masks: <image stem>.png per view, nonzero = object."
+)
+@options.path_option("--depth", help="depth.npz (depth (N,H,W), image_names) to use instead of NeRF depth.")
+@options.path_option(
+    "-o", "--output", folder=True, required=True, help="Folder for the meshes, volume.npz and masks/."
+)
 @options.settings_options(
     stage.Settings,
-    prompt=_setting("prompt", multiple=True),
-    box=_setting("box", callback=options.finite_floats(6)),
+    prompt={"multiple": True, "show_default": False},
+    box={"callback": options.finite_floats(6)},
 )
 @options.json_option
 @options.overwrite_option

@@ -21,21 +21,8 @@ def parse_shard(ctx, param, value):
 )
 @options.settings_options(
     stage.Settings,
-    num_trajectories=click.option(
-        "-n",
-        "--num-trajectories",
-        type=click.IntRange(min=1, max=10**7),
-        default=stage.Settings.num_trajectories,
-        show_default=True,
-        help="Trajectories of the whole run (all shards together).",
-    ),
-    shard=click.option(
-        "--shard",
-        default="0/1",
-        show_default=True,
-        callback=parse_shard,
-        help="Write only shard i of n: the trajectories k with k mod n = i.",
-    ),
+    num_trajectories={"flags": ("-n",)},
+    shard={"default": "0/1", "callback": parse_shard},
 )
 @options.overwrite_option
 def make_dataset(output, overwrite, **settings):

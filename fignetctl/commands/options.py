@@ -193,8 +193,9 @@ def settings_options(settings_class, **overrides):
     """A decorator adding one option per field of a stage's Settings dataclass (see
     fignetctl.stages): `--field-name`, its default, help and bounds from the field's `setting`.
     bool fields become `--x/--no-x`, int and float fields bounded ranges (floats finite),
-    fields with choices a click.Choice. `overrides` maps a field name to a click.option
-    decorator of the command's own (a tuple type, a callback)."""
+    fields with choices a click.Choice. `overrides` maps a field name to what the generator
+    cannot know, as click.option arguments that replace the generated ones (a tuple type, a
+    callback, multiple=True), and `flags`, more names for it (("-n",))."""
     import dataclasses
 
     from fignetctl.stages import field_types
@@ -202,10 +203,8 @@ def settings_options(settings_class, **overrides):
     types = field_types(settings_class)
     decorators = []
     for field in dataclasses.fields(settings_class):
-        if field.name in overrides:
-            decorators.append(overrides[field.name])
-        elif "help" in field.metadata:
-            decorators.append(_settings_option(field, types[field.name]))
+        if "help" in field.metadata:
+            decorators.append(_settings_option(field, types[field.name], **overrides.get(field.name, {})))
 
     def decorate(function):
         for decorator in reversed(decorators):
@@ -215,7 +214,7 @@ def settings_options(settings_class, **overrides):
     return decorate
 
 
-def _settings_option(field, kind):
+def _settings_option(field, kind, flags=(), **changes):
     meta, flag = field.metadata, "--" + field.name.replace("_", "-")
     low, high = meta["low"], meta["high"]
     if meta["choices"] is not None:
@@ -228,16 +227,20 @@ def _settings_option(field, kind):
     elif kind is float:
         param_type = FiniteFloatRange(low, high, min_open=meta["low_open"])
     else:
-        param_type = kind
-    return click.option(
-        flag,
-        field.name,
-        type=param_type,
-        default=field.default,
-        show_default=field.default is not None,
-        metavar=meta["metavar"],
-        help=meta["help"],
-    )
+        param_type = kind if kind is str else None  # others (tuples) are parsed by an override
+    arguments = {
+        "type": param_type,
+        "default": field.default,
+        "show_default": field.default is not None,
+        "metavar": meta["metavar"],
+        "help": meta["help"],
+    }
+    return click.option(*flags, flag, field.name, **{**arguments, **changes})
+
+
+def path_option(*decls, folder=False, **kwargs):
+    """An option naming a file (or, with `folder`, a folder)."""
+    return click.option(*decls, type=click.Path(file_okay=not folder, dir_okay=folder), **kwargs)
 
 
 def settings_from(settings_class, values: dict):

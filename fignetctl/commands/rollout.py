@@ -22,13 +22,7 @@ def _sim_scale(ctx, param, value):
 @click.option("--model", help="Model file, or a bundled one: fignet-star-movi-b (default), fignet-movi-b.")
 @options.settings_options(
     stage.Settings,
-    sim_scale=click.option(
-        "--sim-scale",
-        default=stage.Settings.sim_scale,
-        show_default=True,
-        callback=_sim_scale,
-        help="Simulate the scene scaled by this factor, or 'auto': to the model's sizes if outside them.",
-    ),
+    sim_scale={"callback": _sim_scale},
 )
 @options.rerun_option
 @options.json_option

@@ -15,14 +15,7 @@ FILE = click.Path(dir_okay=False)
 )
 @options.settings_options(
     stage.Settings,
-    learning_rate=click.option(
-        "--learning-rate",
-        type=(options.FiniteFloatRange(min=0, min_open=True),) * 2,
-        default=stage.Settings.learning_rate,
-        show_default=True,
-        metavar="INITIAL FINAL",
-        help="Adam's learning rate decays exponentially from INITIAL to FINAL over --steps.",
-    ),
+    learning_rate={"type": (options.FiniteFloatRange(min=0, min_open=True),) * 2, "metavar": "INITIAL FINAL"},
 )
 @click.option(
     "--init-from",

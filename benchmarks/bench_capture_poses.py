@@ -233,11 +233,11 @@ def main():
         capture = args.capture
         render_seconds = None
         if capture is None:
-            from fignetctl.core.synthetic_capture import render_capture
+            from fignetctl.stages.render_views import write_capture
 
             capture = tmp / "capture"
             start = time.perf_counter()
-            render_capture(capture)  # the defaults
+            write_capture(capture)  # the defaults
             render_seconds = time.perf_counter() - start
         truth = read_cameras(capture / "ground_truth" / "cameras.npz")
         scene = json.loads((capture / "ground_truth" / "scene.json").read_text())

@@ -31,10 +31,11 @@ ROOT = Path(__file__).resolve().parents[1]
 def capture_folder(path):
     if path is not None:
         return Path(path)
-    from fignetctl.core.synthetic_capture import render_capture
+    from fignetctl.core.synthetic_capture import capture_settings
+    from fignetctl.stages.render_views import write_capture
 
     folder = Path(tempfile.mkdtemp(prefix="bench-nerf-")) / "capture"
-    render_capture(folder, video=False)
+    write_capture(folder, capture_settings(video=False))
     return folder
 
 

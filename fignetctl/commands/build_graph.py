@@ -43,7 +43,7 @@ def build_graph(volume_path, object_path, environment_path, output, json_path, o
       fignetctl rollout scene.h5 --steps 60 -o rollout.h5
     """
     path = options.output_path(output, overwrite)
-    json_path = options.json_path_checked(json_path, overwrite)
+    json_path = options.optional_output(json_path, overwrite, "--json")
     settings = options.settings_from(stage.Settings, settings)
     summary = stage.run(volume_path, path, settings, object_path, environment_path, json_path)
     click.echo(summary["message"], err=True)

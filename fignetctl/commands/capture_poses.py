@@ -41,7 +41,7 @@ def capture_poses(output, json_path, overwrite, **values):
       fignetctl capture-poses --import-colmap sparse/0 --images images --gravity plane -o cameras.npz
     """
     settings, output = options.settings_from(stage.Settings, values), options.output_path(output, overwrite)
-    json_path = options.json_path_checked(json_path, overwrite)
+    json_path = options.optional_output(json_path, overwrite, "--json")
     for key, default in stage.default_folders(output, settings, values["video"]).items():
         values[key] = values[key] or default
     for key in ("export_transforms", "rerun_path", "frames_dir", "undistorted_dir", "keep_colmap"):

@@ -49,7 +49,7 @@ def extract_mesh(nerf, output, json_path, overwrite, **values):
     """
     for name in stage.OUTPUTS:
         options.output_path(Path(output) / name, overwrite)
-    json_path = options.json_path_checked(json_path, overwrite)
+    json_path = options.optional_output(json_path, overwrite, "--json")
     settings = options.settings_from(stage.Settings, values)
     summary = stage.run(nerf, output, settings, **values, json_path=json_path)
     click.echo(summary["message"], err=True)

@@ -3,26 +3,15 @@
 import click
 
 from fignetctl.commands import options
-from fignetctl.errors import FignetError
 from fignetctl.stages import make_dataset as stage
 
 
-def parse_shard(ctx, param, value):
-    """'i/n' -> (i, n) with 0 <= i < n; click.BadParameter otherwise."""
-    try:
-        return stage.parse_shard(value)
-    except FignetError as error:
-        raise click.BadParameter(str(error)) from None
-
-
 @click.command("make-dataset")
-@click.option(
-    "-o", "--output", type=click.Path(dir_okay=False), required=True, help="Trajectory file (.h5) to write."
-)
+@options.path_option("-o", "--output", required=True, help="Trajectory file (.h5) to write.")
 @options.settings_options(
     stage.Settings,
     num_trajectories={"flags": ("-n",)},
-    shard={"default": "0/1", "callback": parse_shard},
+    shard={"default": "0/1", "callback": options.parsed_by(stage.parse_shard)},
 )
 @options.overwrite_option
 def make_dataset(output, overwrite, **settings):

@@ -9,10 +9,10 @@ from fignetctl.stages import render_nerf as stage
 @click.command("render-nerf")
 @click.argument("nerf", type=click.Path(dir_okay=False))
 @click.argument("cameras", type=click.Path(dir_okay=False))
-@click.option(
+@options.path_option(
     "-o",
     "--output",
-    type=click.Path(file_okay=False),
+    folder=True,
     required=True,
     help="Folder for <name>.png, <name>_depth.png and <name>_depth.npy.",
 )

@@ -39,7 +39,7 @@ def rerender(output, frames_dir, rerun_path, json_path, overwrite, **values):
     """
     settings = options.settings_from(stage.Settings, values)  # values keeps NERF, VOLUME, ROLLOUT, --cameras
     video = options.output_path(output, overwrite)
-    json_path = options.json_path_checked(json_path, overwrite)
+    json_path = options.optional_output(json_path, overwrite, "--json")
     frames = options.output_path(frames_dir or stage.default_frames_dir(video), overwrite, "--frames")
     rrd = options.output_path(rerun_path, overwrite, "--rerun") if rerun_path else None
     outputs = {"video": video, "frames": frames, "rerun_path": rrd, "json_path": json_path}

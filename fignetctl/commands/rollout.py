@@ -3,17 +3,9 @@
 import click
 
 from fignetctl.commands import options
-from fignetctl.errors import FignetError
 from fignetctl.stages import rollout as stage
 
 FILE = click.Path(dir_okay=False)
-
-
-def _sim_scale(ctx, param, value):
-    try:
-        return stage.parse_sim_scale(value)
-    except FignetError as error:
-        raise click.BadParameter(str(error)) from None
 
 
 @click.command("rollout")
@@ -22,7 +14,7 @@ def _sim_scale(ctx, param, value):
 @click.option("--model", help="Model file, or a bundled one: fignet-star-movi-b (default), fignet-movi-b.")
 @options.settings_options(
     stage.Settings,
-    sim_scale={"callback": _sim_scale},
+    sim_scale={"callback": options.parsed_by(stage.parse_sim_scale)},
 )
 @options.rerun_option
 @options.json_option
@@ -45,7 +37,8 @@ def rollout(scene, output, model, rerun_path, json_path, overwrite, **settings):
       fignetctl rollout scene.h5 --steps 200 -o rollout.h5
       fignetctl show rollout.h5 --video rollout.mp4
     """
-    path, json_path = options.output_path(output, overwrite), options.json_path_checked(json_path, overwrite)
+    path = options.output_path(output, overwrite)
+    json_path = options.optional_output(json_path, overwrite, "--json")
     rerun_path = options.optional_output(rerun_path, overwrite, "--rerun")
     settings = options.settings_from(stage.Settings, settings)
     stage.run(scene, path, settings, model, rerun_path, json_path, options.progress)

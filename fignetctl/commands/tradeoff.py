@@ -1,35 +1,33 @@
 """`fignetctl tradeoff`: accuracy against seconds for the knobs that trade one for the other."""
 
+import functools
+
 import click
 
 from fignetctl.commands import options
 from fignetctl.stages import tradeoff as stage
 
-
-def _input(flag, help, file=True):
-    return click.option(flag, type=click.Path(exists=True, dir_okay=not file, file_okay=file), help=help)
+_input = functools.partial(options.path_option, exists=True)
 
 
 @click.command("tradeoff")
 @click.argument("knobs", nargs=-1, required=True, type=click.Choice(stage.KNOB_CHOICES))
-@click.option(
-    "-o",
-    "--out-dir",
-    type=click.Path(file_okay=False),
-    required=True,
-    help="Folder for tradeoff-KNOB.json, .csv and .png.",
+@options.path_option(
+    "-o", "--out-dir", folder=True, required=True, help="Folder for tradeoff-KNOB.json, .csv and .png."
 )
 @_input(
     "--data",
-    "Ground-truth trajectory file for the simulator knobs.  [default: 8 movi-b trajectories made in OUT_DIR]",
+    help="Ground-truth trajectory file for the simulator knobs.  [default: 8 movi-b trajectories made in OUT_DIR]",
 )
 @_input(
     "--train-data",
-    "Training file of the message-passing sweep.  [default: 16 movi-b trajectories made in OUT_DIR]",
+    help="Training file of the message-passing sweep.  [default: 16 movi-b trajectories made in OUT_DIR]",
 )
-@_input("--capture", "render-views folder (prompts.json, ground_truth/) for marching-cubes.", file=False)
-@_input("--nerf", "nerf.pt of that capture for marching-cubes (fignetctl fit-nerf --preset fast).")
-@_input("--nerf-curve", "Learning-curve json of benchmarks/bench_nerf.py for nerf-steps.")
+@_input(
+    "--capture", folder=True, help="render-views folder (prompts.json, ground_truth/) for marching-cubes."
+)
+@_input("--nerf", help="nerf.pt of that capture for marching-cubes (fignetctl fit-nerf --preset fast).")
+@_input("--nerf-curve", help="Learning-curve json of benchmarks/bench_nerf.py for nerf-steps.")
 @options.settings_options(stage.Settings)
 @options.overwrite_option
 def tradeoff(knobs, out_dir, overwrite, **values):

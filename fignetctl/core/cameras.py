@@ -22,10 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.containers import read_npz_document, require_regular_file
+from fignetctl.core.containers import read_npz_document, require_regular_file, write_npz_document
 from fignetctl.core.media import read_image
 from fignetctl.core.pinhole import Camera
-from fignetctl.core.provenance import as_strings, stamp
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.cameras"
@@ -132,20 +131,16 @@ def write_cameras(path, cameras: Cameras, provenance: dict | None = None) -> Non
     """Validate, then write `cameras.npz` atomically, stamped with `provenance` (provenance.stamp;
     default: the version alone)."""
     cameras = validate(cameras, str(path))
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(
-            f,
-            format=np.array(FORMAT),
-            format_version=np.array(FORMAT_VERSION),
-            image_names=cameras.image_names,
-            K=cameras.K,
-            c2w=cameras.c2w,
-            width=np.array(cameras.width),
-            height=np.array(cameras.height),
-            points=cameras.points,
-            point_colors=cameras.point_colors,
-            **as_strings(provenance or stamp()),
-        )
+    arrays = {
+        "image_names": cameras.image_names,
+        "K": cameras.K,
+        "c2w": cameras.c2w,
+        "width": np.array(cameras.width),
+        "height": np.array(cameras.height),
+        "points": cameras.points,
+        "point_colors": cameras.point_colors,
+    }
+    write_npz_document(path, FORMAT, FORMAT_VERSION, arrays, provenance)
 
 
 def read_cameras(path) -> Cameras:

@@ -75,7 +75,8 @@ def read_npz_document(path, name: str, fmt: str, version: int, required=()) -> d
 
 def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: int) -> dict:
     """The dictionary of a torch file (loaded with weights_only) whose `format` is `fmt` and
-    `format_version` is `version`; any problem is a one-line FormatError naming `path`.
+    `format_version` is `version` (or one of a tuple of versions); any problem is a one-line
+    FormatError naming `path`.
 
     kind : 'model', 'nerf', ... for the messages; readable_as : what the file should read as
     """
@@ -88,10 +89,12 @@ def read_torch_document(path, kind: str, readable_as: str, fmt: str, version: in
         raise FormatError(f"{path}: not a readable {readable_as} ({type(error).__name__})") from None
     if not isinstance(payload, dict) or payload.get("format") != fmt:
         raise FormatError(f"{path}: not a fignetctl {kind} file (no format={fmt!r})")
-    if payload.get("format_version") != version:
+    versions = tuple(version) if isinstance(version, (tuple, list)) else (version,)
+    if payload.get("format_version") not in versions:
+        readable = " or ".join(str(v) for v in versions)
         raise FormatError(
             f"{path}: {kind} format_version {payload.get('format_version')!r} is not supported "
-            f"(this fignetctl reads {version}); upgrade fignetctl"
+            f"(this fignetctl reads {readable}); upgrade fignetctl"
         )
     stored = payload.get(WEIGHTS_HASH_KEY)
     if stored is not None and (
@@ -120,6 +123,24 @@ def weights_sha256(state: dict) -> str:
         digest.update(f"{name}:{tensor.dtype}:{tuple(tensor.shape)};".encode())
         digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
     return digest.hexdigest()
+
+
+def write_npz_document(path, fmt: str, version: int, arrays: dict, provenance=None) -> Path:
+    """Write an .npz atomically: `format`, `format_version` (what `read_npz_document` checks),
+    `arrays` and the provenance stamp (provenance.stamp; default: the version alone). Returns
+    the path."""
+    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.provenance import as_strings, stamp
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(
+            f,
+            format=np.array(fmt),
+            format_version=np.array(version),
+            **arrays,
+            **as_strings(provenance or stamp()),
+        )
+    return Path(path)
 
 
 def write_torch_document(

@@ -800,31 +800,3 @@ def check_mask_agreement(agreement: dict, settings: ExtractionSettings) -> None:
                 name,
                 value,
             )
-
-
-def write_extraction(
-    out_dir, extraction: Extraction, settings: ExtractionSettings, extra_settings=None, provenance=None
-):
-    """object.obj (vertices relative to the origin), environment.obj (world), volume.npz (stamped
-    with `provenance`)."""
-    from pathlib import Path
-
-    from fignetctl.core.obj import write_obj
-    from fignetctl.core.volume import Volume, write_volume
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    object_mesh = extraction.object_mesh.copy()
-    object_mesh.apply_translation(-extraction.origin)
-    for name, mesh in (("object.obj", object_mesh), ("environment.obj", extraction.environment_mesh)):
-        write_obj(out_dir / name, mesh.vertices, mesh.faces)
-    volume = Volume(
-        lower=extraction.lower,
-        upper=extraction.upper,
-        origin=extraction.origin,
-        passive_lower=extraction.passive_lower,
-        passive_upper=extraction.passive_upper,
-        settings={**settings.to_dict(), **(extra_settings or {}), "support_z": extraction.support_z},
-    )
-    write_volume(out_dir / "volume.npz", volume, provenance)
-    return volume

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core.obj import write_convex_parts_obj
+from fignetctl.core.shapes import configure_kubric_physics
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile
 from fignetctl.core.transforms import (
     lowest_vertex_heights,
@@ -537,18 +538,7 @@ class MoviSimulator:
     def _reset_world(self) -> None:
         p, client = self.pybullet, self.client
         p.resetSimulation(physicsClientId=client)
-        p.setGravity(*self.config.gravity, physicsClientId=client)
-        p.setTimeStep(1.0 / self.config.physics_hz, physicsClientId=client)
-        # Kubric's settings against "sticky walls" (bullet3 issue 3094).
-        p.setPhysicsEngineParameter(
-            restitutionVelocityThreshold=0.0,
-            warmStartingFactor=0.0,
-            useSplitImpulse=True,
-            contactSlop=0.0,
-            enableConeFriction=False,
-            deterministicOverlappingPairs=True,
-            physicsClientId=client,
-        )
+        configure_kubric_physics(client, self.config.gravity, self.config.physics_hz)
 
     def _add_floor(self) -> int:
         p, config = self.pybullet, self.config

@@ -24,7 +24,6 @@ unedited background image is rendered once per camera and only those pixels are 
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import time
 
@@ -339,7 +338,7 @@ def draw_trace(image, camera, positions, colour=(255, 210, 0)):
     return image
 
 
-# ----------------------------------------------------------------------------- outputs
+# ----------------------------------------------------------------------------- frames
 
 
 def to_uint8(rgb) -> np.ndarray:
@@ -347,103 +346,15 @@ def to_uint8(rgb) -> np.ndarray:
     return np.clip(np.round(np.asarray(rgb) * 255.0), 0, 255).astype(np.uint8)
 
 
-class _RerunLog:
-    """Frames, camera and the object's path in a rerun recording (timeline "frame"), and the
-    mp4 the frames went into."""
-
-    def __init__(self, rr, rec, motion: ObjectMotion, steps):
-        self.rr, self.rec = rr, rec
-        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        path_points = np.asarray(motion.positions[list(steps)], np.float32)
-        self.rec.log(
-            "world/trace", rr.LineStrips3D([path_points], colors=[(255, 210, 0)], radii=0.005), static=True
-        )
-        self.positions = motion.positions
-
-    def log(self, index: int, step: int, camera, image) -> None:
-        rr, rec = self.rr, self.rec
-        K, c2w, width, height = camera
-        rec.set_time("frame", sequence=index)
-        rec.log("world/object", rr.Points3D([self.positions[step]], colors=[(255, 210, 0)], radii=0.02))
-        rec.log("world/camera", rr.Transform3D(translation=c2w[:3, 3], mat3x3=c2w[:3, :3]))
-        rec.log(
-            "world/camera", rr.Pinhole(image_from_camera=np.asarray(K), width=int(width), height=int(height))
-        )
-        rec.log("world/camera/image", rr.Image(image))
-
-    def video(self, path) -> int:
-        """The H.264 mp4 itself (static at "video"), its frame k shown at frame k of the timeline;
-        returns the number of frames rerun's decoder found in it."""
-        rr = self.rr
-        asset = rr.AssetVideo(path=path)
-        self.rec.log("video", asset, static=True)
-        timestamps = asset.read_frame_timestamps_nanos()
-        self.rec.send_columns(
-            "video",
-            indexes=[rr.TimeColumn("frame", sequence=np.arange(len(timestamps)))],
-            columns=rr.VideoFrameReference.columns_nanos(timestamps),
-        )
-        return len(timestamps)
-
-
-def write_rerender(
-    renderer: Rerenderer,
-    cameras,
-    steps,
-    frames_dir,
-    video_path,
-    fps: float,
-    trace=False,
-    rerun_path=None,
-    progress=None,
-) -> dict:
-    """Render `steps` (one camera (K, c2w, width, height) per step in `cameras`) to
-    frames_dir/frame_00000.png ... and an H.264 mp4 (media.py), both atomically; optionally a rerun
-    recording. Returns timings: background_ms (unedited render, per camera), frame_ms (mean
-    per frame, bent pixels only), bent_fraction (mean share of bent pixels)."""
-    import cv2
-
-    from fignetctl.core.atomic import atomic_directory, atomic_path
-    from fignetctl.core.media import Mp4Writer
-    from fignetctl.core.rerun_log import recording
-
-    steps, cameras = list(steps), list(cameras)
-    width, height = int(cameras[0][2]), int(cameras[0][3])
-    frame_seconds, bent_fractions = [], []
-    with contextlib.ExitStack() as stack:
-        tmp_dir = stack.enter_context(atomic_directory(frames_dir, ("frame_*.png",)))
-        tmp_video = stack.enter_context(atomic_path(video_path, suffix=".mp4"))
-        writer = stack.enter_context(Mp4Writer(tmp_video, float(fps), width, height))
-        log = (
-            _RerunLog(*stack.enter_context(recording(rerun_path)), renderer.motion, steps)
-            if rerun_path
-            else None
-        )
-        for index, (step, camera) in enumerate(
-            progress(list(zip(steps, cameras))) if progress else zip(steps, cameras)
-        ):
-            frame = renderer.render(camera, step)
-            frame_seconds.append(frame.seconds)
-            bent_fractions.append(float(frame.bent.mean()))
-            image = to_uint8(frame.rgb)
-            if trace:
-                draw_trace(image, camera, renderer.motion.positions[steps[: index + 1]])
-            if not cv2.imwrite(
-                str(tmp_dir / f"frame_{index:05d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-            ):
-                raise FignetError(f"{frames_dir}: OpenCV could not write a PNG")
-            writer.write(image)
-            if log:
-                log.log(index, step, camera, image)
-        writer.close()
-        if log:
-            log.video(tmp_video)
-    return {
-        "frames": len(steps),
-        "width": width,
-        "height": height,
-        "background_ms": 1000.0 * float(np.mean(renderer.background_seconds)),
-        "backgrounds": len(renderer.background_seconds),
-        "frame_ms": 1000.0 * float(np.mean(frame_seconds)),
-        "bent_fraction": float(np.mean(bent_fractions)),
-    }
+def render_frames(renderer: Rerenderer, shots, trace=False):
+    """Render each (step, camera (K, c2w, width, height)) of `shots` in order; yields (step,
+    camera, Frame, image), the image the frame's RGB as uint8 (H, W, 3), with the object's path
+    so far drawn on it when `trace`."""
+    steps = []
+    for step, camera in shots:
+        steps.append(step)
+        frame = renderer.render(camera, step)
+        image = to_uint8(frame.rgb)
+        if trace:
+            draw_trace(image, camera, renderer.motion.positions[steps])
+        yield step, camera, frame, image

@@ -912,12 +912,13 @@ def box_corners(low, high) -> np.ndarray:
 # ----------------------------------------------------------------------------- PyBullet
 
 
-def configure_kubric_physics(client: int) -> None:
-    """Kubric's PyBullet settings: 240 Hz, gravity (0, 0, -10) and its engine parameters."""
+def configure_kubric_physics(client: int, gravity=(0.0, 0.0, -10.0), hz: int = PHYSICS_HZ) -> None:
+    """Kubric's PyBullet settings: `hz` steps a second (240), `gravity` ((0, 0, -10)) and its
+    engine parameters (Kubric's against "sticky walls", bullet3 issue 3094)."""
     import pybullet
 
-    pybullet.setGravity(0.0, 0.0, -10.0, physicsClientId=client)
-    pybullet.setTimeStep(1.0 / PHYSICS_HZ, physicsClientId=client)
+    pybullet.setGravity(*gravity, physicsClientId=client)
+    pybullet.setTimeStep(1.0 / hz, physicsClientId=client)
     pybullet.setPhysicsEngineParameter(
         restitutionVelocityThreshold=0,
         warmStartingFactor=0,

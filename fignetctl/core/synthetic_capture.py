@@ -12,7 +12,9 @@ Cameras orbit the tray on a wavy ring (elevation between 25 and 50 degrees, two 
 all looking at the tray's centre; the video follows the same closed path with `video_step`
 frames per view, so video frame `k * video_step` is view `k`.
 
-Output folder (written to a temporary sibling, then renamed into place):
+`render_capture` renders it in memory (a `Capture`); the render-views stage
+(`fignetctl.stages.render_views.write_capture`) writes the folder, to a temporary sibling then
+renamed into place:
 
     images/view_000.png ...        RGB PNG, width x height
     video.mp4                      the orbit, H.264, frame k*video_step == view k (optional)
@@ -34,16 +36,15 @@ point (u + 0.5, v + 0.5) of K, as in COLMAP and nerfstudio. TinyRenderer samples
 corner, so K's principal point is (width / 2 + 0.5, height / 2 - 0.5), not the image's middle
 (see `intrinsics`); GT depth, masks and projections of the GT meshes agree to the pixel.
 
-    from fignetctl.core.synthetic_capture import render_capture
-    render_capture("capture", views=40, width=320, height=240, seed=0)   # ~10 s on 2 cores
-    render_capture("tiny", views=8, width=80, height=60, video=False)    # < 1 s, for tests
+    from fignetctl.core.synthetic_capture import capture_settings
+    from fignetctl.stages.render_views import write_capture
+    write_capture("capture", capture_settings(views=40, width=320, height=240, seed=0))  # ~10 s on 2 cores
+    write_capture("tiny", capture_settings(views=8, width=80, height=60, video=False))  # < 1 s, for tests
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import logging
 import math
 import os
 import tempfile
@@ -53,11 +54,8 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core import pinhole
-from fignetctl.core.atomic import atomic_directory
-from fignetctl.core.obj import read_obj, write_obj
+from fignetctl.core.obj import read_obj
 from fignetctl.errors import FignetError
-
-log = logging.getLogger(__name__)
 
 PROMPTS_FORMAT = "fignetctl.prompts"
 SCENE_FORMAT = "fignetctl.scene"
@@ -107,7 +105,7 @@ class CaptureSettings:
         return self
 
 
-# Keyword arguments of render_capture: render_capture(out, **PRESETS["tiny"]).
+# Keyword arguments of capture_settings: capture_settings(**PRESETS["tiny"]).
 PRESETS = {
     "default": {},  # 40 views 320x240 + a 120-frame video: ~10 s; COLMAP registers every view
     "tiny": dict(views=8, width=80, height=60, texture_size=256, points=500, video_step=2),  # < 1 s, tests
@@ -171,17 +169,12 @@ class SceneObject:
         return self.role == "object"
 
 
-def render_capture(
-    out_dir, views=40, width=320, height=240, seed=0, video=True, overwrite=False, progress=None, **settings
-) -> dict:
-    """Render the bundled capture into `out_dir` (a folder; see the module docstring).
-
-    `settings` are further CaptureSettings fields (video_step, num_objects, fov_y_deg, ...).
-    `progress`, if given, wraps an iterable (e.g. a tqdm bar). Refuses an existing `out_dir`
-    unless `overwrite`. Returns a summary dict (paths, counts, seconds).
-    """
+def capture_settings(views=40, width=320, height=240, seed=0, video=True, **settings) -> CaptureSettings:
+    """CaptureSettings from loose values (numbers as text, numpy integers), validated: a one-line
+    FignetError names a bad one. `settings` are further fields (video_step, num_objects,
+    fov_y_deg, ...); `capture_settings(**PRESETS["tiny"])` gives the fast test settings."""
     try:
-        config = CaptureSettings(
+        return CaptureSettings(
             views=int(views),
             width=int(width),
             height=int(height),
@@ -191,18 +184,33 @@ def render_capture(
         ).validate()
     except TypeError as error:
         raise FignetError(f"bad capture setting: {error}") from None
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not overwrite:
-        raise FignetError(f"{out_dir} exists; pass `overwrite` to replace it")
-    with atomic_directory(out_dir, CAPTURE_ENTRIES) as tmp:
-        return _render_into(tmp, config, progress or (lambda iterable, **kw: iterable)) | {
-            "output": str(out_dir)
-        }
 
 
-def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
+@dataclasses.dataclass
+class Capture:
+    """A rendered capture in memory: what the capture folder holds (see the module docstring),
+    but for the video, which `render_capture` hands over frame by frame."""
+
+    config: CaptureSettings
+    objects: list  # SceneObject, in id order
+    cameras: object  # fignetctl.core.cameras.Cameras of the views, with the GT points
+    rgb: np.ndarray  # (N, H, W, 3) uint8
+    depth: np.ndarray  # (N, H, W) float32 metres along the optical axis (inf: nothing)
+    masks: np.ndarray  # (N, H, W) int16 scene-object id per pixel (-1: nothing)
+    prompts: dict  # prompts.json
+    measurements: dict  # measurements.json
+    scene: dict  # scene.json, less its summary
+    summary: dict  # views, width, height, video_frames, objects, build_seconds, seconds_per_view
+    render_seconds: float  # rendering the views (not the video)
+
+
+def render_capture(config: CaptureSettings, progress=None, video_frame=None) -> Capture:
+    """Render the bundled capture with `config` (see the module docstring). When `config.video`,
+    each frame of the orbit video, (H, W, 3) uint8 RGB, is given to `video_frame` as it is
+    rendered (the frames are not kept). `progress`, if given, wraps an iterable (e.g. a tqdm bar)."""
     import pybullet as p
 
+    progress = progress or (lambda iterable, **kw: iterable)
     start = time.perf_counter()
     client = p.connect(p.DIRECT)
     try:
@@ -213,11 +221,9 @@ def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
         renders, render_seconds = _render_views(client, config, cameras, progress)
         video_frames = 0
         if config.video:
-            video_frames = _write_video(client, config, folder / "video.mp4", progress)
+            video_frames = _render_video(client, config, video_frame or (lambda rgb: None), progress)
     finally:
         p.disconnect(client)
-    names = _write_views(folder, config, objects, cameras, renders)
-    total = time.perf_counter() - start
     summary = {
         "views": config.views,
         "width": config.width,
@@ -226,21 +232,8 @@ def _render_into(folder: Path, config: CaptureSettings, progress) -> dict:
         "objects": [o.name for o in objects if o.movable],
         "build_seconds": round(build_seconds, 3),
         "seconds_per_view": round(render_seconds / config.views, 4),
-        "total_seconds": round(total, 3),
     }
-    log.info(
-        "rendered %d views %dx%d in %.2f s (%.1f ms per view)",
-        config.views,
-        config.width,
-        config.height,
-        total,
-        1000 * render_seconds / config.views,
-    )
-    _write_json(
-        folder / "ground_truth" / "scene.json",
-        scene_document(objects, config, cameras, names) | {"summary": summary},
-    )
-    return summary
+    return _assemble(config, objects, cameras, renders, summary, render_seconds)
 
 
 # Scene ------------------------------------------------------------------------------------
@@ -589,68 +582,45 @@ def _render_views(client, config, cameras, progress):
     return renders, time.perf_counter() - start
 
 
-def _write_video(client, config, path: Path, progress) -> int:
-    from fignetctl.core.media import Mp4Writer
-
+def _render_video(client, config, video_frame, progress) -> int:
     steps = np.arange(config.views * config.video_step) / config.video_step
     cameras = ring_cameras(config, steps)
-    with Mp4Writer(path, config.video_fps, config.width, config.height) as writer:
-        for view in progress(cameras["views"], desc="video", unit="frame"):
-            rgb, _, _ = render_one(client, config, view, cameras["projection"])
-            writer.write(rgb)
+    for view in progress(cameras["views"], desc="video", unit="frame"):
+        rgb, _, _ = render_one(client, config, view, cameras["projection"])
+        video_frame(rgb)
     return len(steps)
 
 
-# Writing ----------------------------------------------------------------------------------
+# Assembling -------------------------------------------------------------------------------
 
 
-def _write_views(folder: Path, config, objects, cameras, renders) -> list[str]:
-    import cv2
+def _assemble(config, objects, cameras, renders, summary, render_seconds) -> Capture:
+    """The capture's arrays and documents from the rendered views."""
+    from fignetctl.core.cameras import Cameras
 
-    from fignetctl.core.cameras import Cameras, write_cameras
-
-    images, ground_truth = folder / "images", folder / "ground_truth"
-    (ground_truth / "objects").mkdir(parents=True)
-    images.mkdir()
     names = [f"view_{i:03d}.png" for i in range(config.views)]
     rgb = np.stack([r[0] for r in renders])
     depth = np.stack([r[1] for r in renders])
     masks = np.stack([r[2] for r in renders]).astype(np.int16)
     masks[masks >= len(objects)] = -1
     depth[masks < 0] = np.inf  # nothing there (never happens inside the backdrop)
-    for name, image in zip(names, rgb):
-        if not cv2.imwrite(str(images / name), np.ascontiguousarray(image[:, :, ::-1])):
-            raise FignetError(f"cannot write {images / name}")
     K = np.repeat(cameras["K"][None], config.views, axis=0)
     points, colors = sample_points(
         depth, masks, rgb, cameras["K"], cameras["c2w"], config.points, config.seed
     )
-    write_cameras(
-        ground_truth / "cameras.npz",
-        Cameras(np.array(names), K, cameras["c2w"], config.width, config.height, points, colors),
-    )
-    np.savez_compressed(ground_truth / "depth.npz", depth=depth, image_names=np.array(names))
-    np.savez_compressed(
-        ground_truth / "masks.npz",
-        masks=masks,
-        ids=np.array([o.id for o in objects], np.int16),
-        names=np.array([o.name for o in objects]),
-        image_names=np.array(names),
-    )
-    for item in objects:
-        write_obj(ground_truth / "objects" / f"{item.name}.obj", item.vertices, item.faces)
-    _write_json(folder / "prompts.json", prompts_document(objects, masks, names, cameras["eyes"], config))
+    views = Cameras(np.array(names), K, cameras["c2w"], config.width, config.height, points, colors)
+    prompts = prompts_document(objects, masks, names, cameras["eyes"], config)
     # What a user would measure with a tape: the cameras' mean height above the table top
     # (z = 0), for capture-poses --camera-height.
-    _write_json(
-        folder / "measurements.json",
-        {
-            "format": "fignetctl.measurements",
-            "format_version": 1,
-            "camera_height_m": float(np.mean(cameras["eyes"][:, 2])),
-        },
+    measurements = {
+        "format": "fignetctl.measurements",
+        "format_version": 1,
+        "camera_height_m": float(np.mean(cameras["eyes"][:, 2])),
+    }
+    scene = scene_document(objects, config, cameras, names)
+    return Capture(
+        config, objects, views, rgb, depth, masks, prompts, measurements, scene, summary, render_seconds
     )
-    return names
 
 
 def sample_points(depth, masks, rgb, K, c2w, count, seed):
@@ -758,11 +728,3 @@ def scene_document(objects, config, cameras, names) -> dict:
         "settings": dataclasses.asdict(config),
         "light": LIGHT,
     }
-
-
-CAPTURE_ENTRIES = ("images", "ground_truth", "video.mp4", "prompts.json", "measurements.json")
-"""What a capture folder holds: replacing one that holds anything else is refused."""
-
-
-def _write_json(path: Path, document: dict) -> None:
-    path.write_text(json.dumps(document, indent=1))

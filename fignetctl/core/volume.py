@@ -24,9 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.atomic import atomic_path
-from fignetctl.core.containers import read_npz_document
-from fignetctl.core.provenance import as_strings, stamp
+from fignetctl.core.containers import read_npz_document, write_npz_document
 from fignetctl.errors import FormatError
 
 FORMAT = "fignetctl.volume"
@@ -92,18 +90,11 @@ def write_volume(path, volume: Volume, provenance: dict | None = None) -> Path:
     """Validate, then write volume.npz atomically, stamped with `provenance` (provenance.stamp;
     default: the version alone)."""
     volume = validate_volume(volume, str(path))
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez(
-            f,
-            format=np.array(FORMAT),
-            format_version=np.array(FORMAT_VERSION),
-            **{field: getattr(volume, field) for field in (*_VECTORS, "environment_origin")},
-            object_mesh=np.array(volume.object_mesh),
-            environment_mesh=np.array(volume.environment_mesh),
-            settings=np.array(json.dumps(volume.settings, sort_keys=True)),
-            **as_strings(provenance or stamp()),
-        )
-    return Path(path)
+    arrays = {field: getattr(volume, field) for field in (*_VECTORS, "environment_origin")}
+    arrays["object_mesh"] = np.array(volume.object_mesh)
+    arrays["environment_mesh"] = np.array(volume.environment_mesh)
+    arrays["settings"] = np.array(json.dumps(volume.settings, sort_keys=True))
+    return write_npz_document(path, FORMAT, FORMAT_VERSION, arrays, provenance)
 
 
 def read_volume(path) -> Volume:

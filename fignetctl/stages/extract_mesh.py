@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+import time
 from pathlib import Path
 
-from fignetctl.errors import SettingError
+from fignetctl.errors import FignetError, FormatError, SettingError
 from fignetctl.stages import DEVICES, check, resolve_device, setting, write_summary
 
 OUTPUTS = ("object.obj", "environment.obj", "volume.npz", "masks")
@@ -65,7 +67,6 @@ def run(
     object.obj, environment.obj, volume.npz and masks/ into the folder `output`, and the --json
     summary (with `threshold` and `threshold_choice`). Returns the summary with a one-line `message`."""
     from fignetctl.core.mesh_extraction import THRESHOLD, ExtractionSettings
-    from fignetctl.core.object_extraction import ExtractionInputs, run_extraction
     from fignetctl.core.segmentation import SegmentationSettings
 
     check(settings)
@@ -97,11 +98,243 @@ def run(
         depth=depth,
     )
     segmentation = SegmentationSettings(max_size=settings.max_size)
-    summary = run_extraction(inputs, out, extraction_settings, segmentation, resolve_device(settings.device))
+    summary = _extract(inputs, out, extraction_settings, segmentation, resolve_device(settings.device))
     provenance = summary.pop("provenance")
     summary = {"output": str(out), **summary}
     write_summary(json_path, summary, provenance)
     return {**summary, "message": _message(summary)}
+
+
+@dataclasses.dataclass
+class ExtractionInputs:
+    """Paths and prompts as the user gave them (exactly one of prompts, masks_dir, box)."""
+
+    nerf: str
+    cameras: str
+    images: str | None = None
+    prompt_texts: list = dataclasses.field(default_factory=list)  # "VIEW:U,V"
+    prompts_json: str | None = None
+    object_name: str | None = None
+    masks_dir: str | None = None
+    box: list | None = None  # x0, y0, z0, x1, y1, z1
+    depth: str | None = None  # depth.npz instead of NeRF depth
+
+
+def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, device="cpu") -> dict:
+    """Read the inputs, extract (`object_extraction.extract`) and write; returns a summary
+    (faces, sizes, seconds, per-view mask pixels, the outline checks, and the provenance stamp
+    volume.npz carries)."""
+    import numpy as np
+
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.nerf.io import load_nerf
+    from fignetctl.core.object_extraction import extract
+    from fignetctl.core.provenance import stamp
+
+    started = time.perf_counter()
+    cameras = read_cameras(inputs.cameras)
+    model = load_nerf(inputs.nerf, device=device)
+    views = [] if inputs.box is not None else _views(inputs, cameras, model)
+    result = extract(model.density, settings, views, inputs.box, segmentation)
+    extraction, views, checks = result.extraction, result.views, result.checks
+    extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
+    provenance = stamp(
+        nerf=inputs.nerf,
+        cameras=inputs.cameras,
+        prompts=inputs.prompts_json,
+        masks=inputs.masks_dir,
+        depth=inputs.depth,
+        images=inputs.images if views else None,
+    )
+    write_extraction(out_dir, extraction, result.settings, extra, provenance)
+    _write_masks(Path(out_dir) / "masks", views)
+    return {
+        "object_faces": len(extraction.object_mesh.faces),
+        "environment_faces": len(extraction.environment_mesh.faces),
+        "object_size": np.round(extraction.object_mesh.extents, 3).tolist(),
+        "lower": extraction.lower.tolist(),
+        "upper": extraction.upper.tolist(),
+        "origin": extraction.origin.tolist(),
+        "support_z": extraction.support_z,
+        "masks": {view.name: int(view.mask.sum()) for view in views},
+        **checks,
+        "provenance": provenance,
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def _views(inputs: ExtractionInputs, cameras, model) -> list:
+    """The prompted or masked views (`mesh_extraction.View`), their images, depth, prompts
+    and user masks read from the files given."""
+    from fignetctl.core.object_extraction import parse_prompts, prompted_view
+
+    image_dir = _image_dir(inputs, cameras)
+    depth_images = read_depth(inputs.depth, cameras) if inputs.depth else None
+    if inputs.masks_dir:
+        masks = read_user_masks(inputs.masks_dir, cameras)
+        prompts = {index: [] for index in masks}
+    else:
+        prompts = (
+            parse_prompts(inputs.prompt_texts, cameras)
+            if inputs.prompt_texts
+            else read_prompts_json(inputs.prompts_json, cameras, inputs.object_name)
+        )
+        masks = {}
+        if len(prompts) < 2:
+            raise FignetError(f"prompts are in {len(prompts)} view; give prompts in at least 2 views")
+    views = []
+    for index in sorted(prompts):
+        name = str(cameras.image_names[index])
+        image = _read_image(image_dir / name, cameras) if index not in masks else None
+        view = prompted_view(index, cameras, model, depth_images, image)
+        view.prompts, view.mask = prompts[index], masks.get(index)
+        views.append(view)
+    return views
+
+
+def _image_dir(inputs, cameras) -> Path:
+    if inputs.images:
+        return Path(inputs.images)
+    if inputs.prompts_json and Path(inputs.prompts_json).is_file():  # never wait on a FIFO
+        try:
+            folder = json.loads(Path(inputs.prompts_json).read_text()).get("image_dir", "images")
+            candidate = Path(inputs.prompts_json).parent / folder
+            if candidate.is_dir():
+                return candidate
+        except (OSError, ValueError, AttributeError):
+            pass
+    here = Path(inputs.cameras).resolve().parent
+    for candidate in (here / "images", here.parent / "images"):
+        if candidate.is_dir():
+            return candidate
+    raise FignetError(f"no images/ folder beside or above {inputs.cameras}; give the `images`")
+
+
+def _read_image(path, cameras):
+    import cv2
+    import numpy as np
+
+    from fignetctl.core.media import read_image
+
+    image = read_image(path, cv2.IMREAD_COLOR, " (are the images the right ones?)")
+    if image.shape[:2] != (cameras.height, cameras.width):
+        raise FormatError(
+            f"{path}: is {image.shape[1]}x{image.shape[0]} but the cameras are {cameras.width}x{cameras.height}"
+        )
+    return np.ascontiguousarray(image[..., ::-1])
+
+
+def read_depth(path, cameras):
+    """depth.npz (depth (N, H, W) of the views of `cameras`) -> (N, H, W) float64."""
+    import numpy as np
+
+    from fignetctl.core.containers import read_npz_arrays
+
+    arrays = read_npz_arrays(path, "depth.npz")
+    if "depth" not in arrays:
+        raise FormatError(f"{path}: not a depth.npz with a 'depth' array")
+    depth = np.asarray(arrays["depth"], np.float64)
+    if depth.shape != (len(cameras), cameras.height, cameras.width):
+        raise FormatError(
+            f"{path}: depth has shape {depth.shape}, expected {(len(cameras), cameras.height, cameras.width)}"
+        )
+    return depth
+
+
+def read_prompts_json(path, cameras, object_name=None) -> dict:
+    """prompts.json (format fignetctl.prompts v1) -> {view index: [(u, v)]} of one object."""
+    from fignetctl.core.containers import require_regular_file
+    from fignetctl.core.object_extraction import parse_prompts
+
+    path = require_regular_file(path)
+    try:
+        document = json.loads(path.read_text())
+        if document.get("format") != "fignetctl.prompts" or document.get("format_version") != 1:
+            raise ValueError("not format fignetctl.prompts version 1")
+        objects = document["objects"]
+        if object_name is not None:
+            objects = [o for o in objects if o["name"] == object_name]
+            if not objects:
+                names = [o["name"] for o in document["objects"]]
+                raise FignetError(f"{path}: no object {object_name!r} (it has {', '.join(names)})")
+        points = objects[0]["points"]
+        texts = [f"{p['image']}:{int(p['u'])},{int(p['v'])}" for p in points]
+    except FileNotFoundError:
+        raise FormatError(f"{path}: no such file") from None
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        TypeError,
+        IndexError,
+        AttributeError,
+        OverflowError,
+        RecursionError,
+    ) as error:
+        raise FormatError(f"{path}: not a usable prompts.json ({type(error).__name__}: {error})") from None
+    return parse_prompts(texts, cameras)
+
+
+def read_user_masks(folder, cameras) -> dict:
+    """<folder>/<image stem>.png for the views that have one -> {view index: (H, W) bool}."""
+    import cv2
+
+    from fignetctl.core.media import read_image
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FignetError(f"{folder}: no such mask folder")
+    masks = {}
+    for index, name in enumerate(cameras.image_names):
+        path = folder / (Path(str(name)).stem + ".png")
+        if not path.is_file():
+            continue
+        mask = read_image(path, cv2.IMREAD_GRAYSCALE)
+        if mask.shape != (cameras.height, cameras.width):
+            raise FormatError(f"{path}: not a {cameras.width}x{cameras.height} mask image")
+        masks[index] = mask > 0
+    if len(masks) < 2:
+        raise FignetError(
+            f"{folder}: masks for {len(masks)} of the views (named <image stem>.png); give at least 2"
+        )
+    return masks
+
+
+def write_extraction(out_dir, extraction, settings, extra_settings=None, provenance=None):
+    """object.obj (vertices relative to the origin), environment.obj (world), volume.npz (stamped
+    with `provenance`) of a `mesh_extraction.Extraction` made with `settings`."""
+    from fignetctl.core.obj import write_obj
+    from fignetctl.core.volume import Volume, write_volume
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    object_mesh = extraction.object_mesh.copy()
+    object_mesh.apply_translation(-extraction.origin)
+    for name, mesh in (("object.obj", object_mesh), ("environment.obj", extraction.environment_mesh)):
+        write_obj(out_dir / name, mesh.vertices, mesh.faces)
+    volume = Volume(
+        lower=extraction.lower,
+        upper=extraction.upper,
+        origin=extraction.origin,
+        passive_lower=extraction.passive_lower,
+        passive_upper=extraction.passive_upper,
+        settings={**settings.to_dict(), **(extra_settings or {}), "support_z": extraction.support_z},
+    )
+    write_volume(out_dir / "volume.npz", volume, provenance)
+    return volume
+
+
+def _write_masks(folder, views):
+    import cv2
+    import numpy as np
+
+    from fignetctl.core.atomic import atomic_directory
+
+    if not views:
+        return
+    with atomic_directory(folder, ("*.png",)) as tmp:  # one run's masks, never mixed with another's
+        for view in views:
+            cv2.imwrite(str(tmp / (Path(view.name).stem + ".png")), view.mask.astype(np.uint8) * 255)
 
 
 def parse_threshold(value):

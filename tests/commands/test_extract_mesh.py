@@ -15,10 +15,13 @@ BOUNDS = np.array([[-0.35, -0.35, -0.04], [0.35, 0.35, 0.2]])
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.synthetic_capture import PRESETS, render_capture
+    from fignetctl.core.synthetic_capture import PRESETS, capture_settings
+    from fignetctl.stages.render_views import write_capture
 
     folder = tmp_path_factory.mktemp("capture") / "capture"
-    render_capture(folder, **{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    write_capture(
+        folder, capture_settings(**{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    )
     cameras = read_cameras(folder / "ground_truth" / "cameras.npz")
     depth = np.load(folder / "ground_truth" / "depth.npz")["depth"]
     carved_nerf(folder / "nerf.pt", depth, cameras, BOUNDS, resolution=96)

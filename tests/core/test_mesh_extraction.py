@@ -117,10 +117,13 @@ def test_volume_round_trip_and_damage(tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_capture(tmp_path_factory):
-    from fignetctl.core.synthetic_capture import PRESETS, render_capture
+    from fignetctl.core.synthetic_capture import PRESETS, capture_settings
+    from fignetctl.stages.render_views import write_capture
 
     folder = tmp_path_factory.mktemp("capture") / "capture"
-    render_capture(folder, **{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    write_capture(
+        folder, capture_settings(**{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    )
     return folder
 
 

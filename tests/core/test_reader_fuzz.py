@@ -381,7 +381,7 @@ def test_prompts_json_of_the_wrong_shape(tmp_path, document):
     import json
 
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.object_extraction import read_prompts_json
+    from fignetctl.stages.extract_mesh import read_prompts_json
 
     cameras = read_cameras(_cameras_file(tmp_path / "cameras.npz"))
     path = tmp_path / "prompts.json"
@@ -461,7 +461,7 @@ def _header_unclosed(data: bytes) -> bytes:
 )
 def test_npz_members_with_a_damaged_npy_header_are_refused_in_one_line(tmp_path, transform):
     from fignetctl.core.cameras import read_cameras
-    from fignetctl.core.object_extraction import _read_depth
+    from fignetctl.stages.extract_mesh import read_depth
 
     cameras = _cameras_file(tmp_path / "cameras.npz")
     damaged = _npz_member_replaced(cameras, tmp_path / "damaged.npz", "K.npy", transform)
@@ -470,7 +470,7 @@ def test_npz_members_with_a_damaged_npy_header_are_refused_in_one_line(tmp_path,
     depth = _npz_member_replaced(tmp_path / "depth.npz", tmp_path / "d.npz", "depth.npy", transform)
     from fignetctl.core.cameras import read_cameras as read
 
-    _refuses_clearly(lambda path: _read_depth(path, read(cameras)), depth, FormatError)
+    _refuses_clearly(lambda path: read_depth(path, read(cameras)), depth, FormatError)
 
 
 def test_a_valid_trajectory_file_with_gcol_bytes_and_an_object_reference_is_read(tmp_path):

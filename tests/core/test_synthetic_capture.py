@@ -1,4 +1,5 @@
-"""The bundled capture (`fignetctl.core.synthetic_capture`) on tiny renders: files, geometry, prompts."""
+"""The bundled capture (`fignetctl.core.synthetic_capture`, written by the render-views stage) on tiny
+renders: files, geometry, prompts."""
 
 import json
 
@@ -10,14 +11,20 @@ from fignetctl.core import synthetic_capture as capture
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.media import read_video_info
 from fignetctl.errors import FignetError
+from fignetctl.stages.render_views import write_capture
 
 TINY = dict(views=8, width=96, height=72, texture_size=256, points=300, video_step=2)
+
+
+def render_capture(out, overwrite=False, **values):
+    """The capture of `values` (CaptureSettings fields) written into the folder `out`."""
+    return write_capture(out, capture.capture_settings(**values), overwrite)
 
 
 @pytest.fixture(scope="module")
 def tiny_capture(tmp_path_factory):
     out = tmp_path_factory.mktemp("capture") / "scene"
-    summary = capture.render_capture(out, seed=1, **TINY)
+    summary = render_capture(out, seed=1, **TINY)
     return out, summary
 
 
@@ -127,9 +134,9 @@ def test_prompts_lie_inside_their_objects_masks(tiny_capture):
 
 def test_the_same_seed_gives_the_same_capture_and_another_seed_another(tmp_path):
     small = dict(views=4, width=32, height=24, texture_size=128, points=50, video=False, prompts_per_object=2)
-    a = capture.render_capture(tmp_path / "a", seed=5, **small)
-    capture.render_capture(tmp_path / "b", seed=5, **small)
-    c = capture.render_capture(tmp_path / "c", seed=6, num_objects=4, **small)
+    a = render_capture(tmp_path / "a", seed=5, **small)
+    render_capture(tmp_path / "b", seed=5, **small)
+    c = render_capture(tmp_path / "c", seed=6, num_objects=4, **small)
     for name in ("images/view_002.png", "prompts.json"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert not (tmp_path / "a" / "video.mp4").exists()
@@ -145,23 +152,23 @@ def test_an_existing_output_is_kept_unless_overwrite_and_a_failure_leaves_it(tmp
     out.mkdir()
     (out / "prompts.json").write_text("old")  # an earlier capture's file
     with pytest.raises(FignetError, match="exists; pass `overwrite`"):
-        capture.render_capture(out, **small)
+        render_capture(out, **small)
 
     def broken(*args, **kwargs):
         raise FignetError("disk full")
 
     monkeypatch.setattr(capture, "sample_points", broken)
     with pytest.raises(FignetError, match="disk full"):
-        capture.render_capture(out, overwrite=True, **small)
+        render_capture(out, overwrite=True, **small)
     assert (out / "prompts.json").read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == [
         "scene"
     ]
     monkeypatch.undo()
     (out / "notes.txt").write_text("mine")  # not the capture's: replacing the folder would delete it
     with pytest.raises(FignetError, match="holds notes.txt, which this command does not write"):
-        capture.render_capture(out, overwrite=True, **small)
+        render_capture(out, overwrite=True, **small)
     (out / "notes.txt").unlink()
-    capture.render_capture(out, overwrite=True, **small)
+    render_capture(out, overwrite=True, **small)
     assert (out / "prompts.json").read_text() != "old" and (out / "images").is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
 
@@ -177,7 +184,7 @@ def test_an_existing_output_is_kept_unless_overwrite_and_a_failure_leaves_it(tmp
 )
 def test_bad_settings_are_one_line_errors(tmp_path, settings, message):
     with pytest.raises(FignetError, match=message) as error:
-        capture.render_capture(tmp_path / "x", **settings)
+        render_capture(tmp_path / "x", **settings)
     assert "\n" not in str(error.value)
     assert not (tmp_path / "x").exists()
 

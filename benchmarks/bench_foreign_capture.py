@@ -346,6 +346,12 @@ def main():
         "--regions", nargs="*", default=None, help="fit-nerf --region values (default: scene prompts)"
     )
     parser.add_argument("--skip-nerf", action="store_true", help="poses only")
+    parser.add_argument(
+        "--stages",
+        choices=("all", "poses"),
+        default="all",
+        help="poses: rerun capture-poses only (even with --reuse), keep --out's NeRF and mesh figures",
+    )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args()
 
@@ -383,16 +389,23 @@ def main():
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=1))
 
-    results["poses"]["default plane"] = poses(capture, work, "default", [], log, args.reuse)
+    reuse_poses = args.reuse and args.stages != "poses"
+    if args.stages == "poses" and args.out.exists():  # the NeRF figures stay those of the last full run
+        earlier = json.loads(args.out.read_text())
+        for key in ("nerf", "meshes"):
+            if key in earlier:
+                results[key] = earlier[key]
+        results["nerf_and_meshes_from"] = "an earlier full run (--stages poses reran capture-poses only)"
+    results["poses"]["default plane"] = poses(capture, work, "default", [], log, reuse_poses)
     results["poses"]["--support-plane highest"] = poses(
-        capture, work, "highest", ["--support-plane", "highest"], log, args.reuse
+        capture, work, "highest", ["--support-plane", "highest"], log, reuse_poses
     )
     save()
     chosen = next(
         (p for p in results["poses"].values() if p.get("rc") == 0 and p.get("plane_identified") == "table"),
         None,
     )
-    if chosen is None or args.skip_nerf:
+    if chosen is None or args.skip_nerf or args.stages == "poses":
         log("no capture-poses run levelled on the table; stopping" if chosen is None else "poses only")
         print(table(results))
         save()

@@ -1,8 +1,10 @@
 """Metres and z up for cameras from structure from motion (the physics needs both).
 
 Conventions (docs/capture-poses.md):
-- Up: the normal of the dominant support plane in the sparse points (RANSAC, among planes
-  within 45° of the cameras' mean up vector), oriented toward the cameras; or, as a
+- Up: the normal of the support plane in the sparse points (RANSAC, among planes within 45°
+  of the cameras' mean up vector; then the horizontal planes parallel to it, each the largest
+  connected patch of a height band refit with a tight threshold, and the one --support-plane
+  chooses: by default the one under what the cameras look at), oriented toward the cameras; or, as a
   fallback or on request, the cameras' mean up vector (-y of OpenCV cameras: a photographer
   mostly holds the camera level).
 - Origin: the centroid of the plane's inlier points, moved onto the plane, so the support
@@ -33,7 +35,11 @@ MAX_PLANE_TILT_DEG = 45.0  # planes steeper than this from the cameras' up are w
 MIN_PLANE_INLIER_FRACTION = 0.15
 MIN_CANDIDATE_FRACTION = 0.05  # a parallel plane holding this share of the points is a candidate
 MIN_PLANE_FILL = 0.4  # a candidate's points must cover this share of their box (_area_filled)
-SUPPORT_CHOICES = ("largest", "highest", "lowest")
+SUPPORT_CHOICES = ("auto", "largest", "highest", "lowest")
+CLUSTER_LINK = 3.0  # points within this many times their typical spacing belong to one patch
+PLANE_REFINE_TOLERANCE = 0.01  # refit inliers: within this share of the distance to the cameras
+PLANE_TILT_REFINE_DEG = 20.0  # the refit plane stays this close to the band it came from
+LOOKED_AT_BELOW = 0.05  # 'auto': the looked-at point may lie this share of a plane's size below it
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,9 +58,10 @@ class AlignmentSettings:
     """RANSAC plane hypotheses."""
     seed: int = 0
     """RANSAC's random seed."""
-    support_plane: str = "largest"
-    """Which of the horizontal planes in the points is the support: the one holding the most
-    points, or the highest or the lowest holding at least MIN_CANDIDATE_FRACTION of them."""
+    support_plane: str = "auto"
+    """Which of the horizontal planes in the points (parallel_planes) is the support: 'auto' (the
+    highest one under the point the cameras look at, else the largest), 'largest' (the one holding
+    the most points), 'highest' or 'lowest'."""
 
 
 @dataclasses.dataclass
@@ -282,17 +289,25 @@ def find_alignment(cameras: Cameras, settings: AlignmentSettings = AlignmentSett
     """The similarity that puts `cameras` into metres, z up, support plane at z = 0."""
     if settings.gravity == "none":
         return Alignment(1.0, np.eye(3), np.zeros(3), "none", "none (kept)")
+    if settings.support_plane not in SUPPORT_CHOICES:
+        raise FignetError(
+            f"support plane {settings.support_plane!r} is not one of {', '.join(SUPPORT_CHOICES)}"
+        )
     up, on_plane, source, inliers = gravity(cameras, settings)
-    candidates = parallel_planes(cameras, up, on_plane, settings) if source == "plane" else []
-    if candidates:
-        chosen = choose_plane(candidates, settings.support_plane)
-        if settings.support_plane != "largest":  # the largest is the RANSAC plane itself
-            on_plane, inliers = on_plane + chosen["offset"] * up, chosen["count"]
+    candidates, chosen = [], None
+    if source == "plane":
+        refined = _compact_plane(cameras, np.asarray(cameras.points, float), up, on_plane, settings)
+        if refined is not None:  # the RANSAC plane, refit to its own compact patch
+            up, on_plane, inliers = refined["normal"], refined["point"], refined["count"]
+        candidates = parallel_planes(cameras, up, on_plane, settings)
+        if candidates:
+            chosen = choose_plane(candidates, settings.support_plane, looked_at_point(cameras))
+            up, on_plane, inliers = chosen["normal"], chosen["point"], chosen["count"]
     rotation = rotation_between(up, [0.0, 0.0, 1.0])
     scale, scale_source = scale_factor(cameras, rotation, on_plane, settings)
     planes = tuple(
         {
-            "height": scale * (plane["offset"] - chosen["offset"]),
+            "height": 0.0 if plane is chosen else scale * float((plane["point"] - on_plane) @ up),
             "share": plane["count"] / len(cameras.points),
             "extent": [scale * e for e in plane["extent"]],
             "chosen": plane is chosen,
@@ -303,27 +318,94 @@ def find_alignment(cameras: Cameras, settings: AlignmentSettings = AlignmentSett
 
 
 def parallel_planes(cameras: Cameras, up, on_plane, settings: AlignmentSettings) -> list:
-    """Horizontal planes parallel to the RANSAC one, below the cameras: the densest height bands
-    of the points (band width the RANSAC threshold), taken out one by one while one holds at
-    least MIN_CANDIDATE_FRACTION of the points. Each: offset along `up` from `on_plane`, count,
-    extent (middle 90 % across the plane, unscaled); highest first."""
+    """Horizontal planes below the cameras, roughly parallel to the one through `on_plane` with
+    normal `up`: the densest height bands of the points (band width the RANSAC threshold), taken
+    out one by one while one holds at least MIN_CANDIDATE_FRACTION of the points. Within a band
+    only its largest spatially connected cluster counts (_compact_plane: wall points at a
+    table's height are not the table); it must fill its box (not a ring of wall points) and is
+    refit with a tight threshold. Each: normal, point (on the refit plane), count, extent
+    (middle 90 % across the plane, unscaled), offset (along `up` from `on_plane`); highest first."""
     points = np.asarray(cameras.points, float)
     heights = (points - on_plane) @ up
     below = heights < ((cameras.centres - on_plane) @ up).min()
     band = settings.plane_threshold * scene_size(points, cameras)
-    across = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]  # two axes in the plane
     planes, left = [], below.copy()
     while left.sum() >= max(3, MIN_CANDIDATE_FRACTION * len(points)):
         offset, count = densest_band(heights[left], 2 * band)
         if count < MIN_CANDIDATE_FRACTION * len(points):
             break
         members = left & (np.abs(heights - offset) < band)
-        flat = points[members] @ across
-        low, high = np.percentile(flat, [5, 95], axis=0)
-        if _area_filled(flat, low, high) >= MIN_PLANE_FILL:  # not a ring of wall points at one height
-            planes.append({"offset": offset, "count": int(members.sum()), "extent": (high - low).tolist()})
+        plane = _compact_plane(cameras, points[members], up, on_plane + offset * up, settings)
+        if plane is not None and plane["count"] >= MIN_CANDIDATE_FRACTION * len(points):
+            plane["offset"] = float((plane["point"] - on_plane) @ up)
+            planes.append(plane)
         left &= ~(np.abs(heights - offset) < 2 * band)
     return sorted(planes, key=lambda plane: -plane["offset"])
+
+
+def _compact_plane(cameras: Cameras, points, up, near, settings: AlignmentSettings) -> dict | None:
+    """The plane of the largest spatially connected cluster of `points` (n, 3), which lie near
+    the plane through `near` with normal `up`: {normal (toward `up`), point, count, extent,
+    fill}, extent along the cluster's own axes (_own_axes), or None when the cluster does not fill its box (a ring: walls, a rim) or is too small.
+
+    The cluster: points linked when closer across the plane than CLUSTER_LINK times the median
+    distance to their 4th neighbour. The refit: RANSAC within PLANE_TILT_REFINE_DEG of `up`,
+    with inliers within PLANE_REFINE_TOLERANCE of the points' median distance to the cameras
+    (what structure from motion's noise grows with), then least squares on the inliers."""
+    points = np.asarray(points, float)
+    if len(points) < 10:
+        return None
+    across = np.linalg.svd(np.eye(3) - np.outer(up, up))[0][:, :2]  # two axes in the plane
+    cluster = points[_largest_cluster(points @ across)]
+    if len(cluster) < 10:
+        return None
+    flat = cluster @ across
+    flat = _own_axes(flat)
+    low, high = np.percentile(flat, [5, 95], axis=0)
+    fill = _area_filled(flat, low, high)
+    if fill < MIN_PLANE_FILL:  # not a ring of wall points at one height
+        return None
+    distance = float(np.median(np.linalg.norm(cluster - cameras.centres.mean(axis=0), axis=1)))
+    tight = max(PLANE_REFINE_TOLERANCE * distance, 1e-9)
+    cos_max = np.cos(np.deg2rad(PLANE_TILT_REFINE_DEG))
+    found = fit_plane_ransac(
+        cluster, tight, settings.ransac_iterations, settings.seed, allowed=lambda n: abs(n @ up) >= cos_max
+    )
+    if found is None:
+        normal, point, count = np.asarray(up, float), near + ((cluster - near) @ up).mean() * up, len(cluster)
+    else:
+        normal, point, mask = found
+        normal, count = (normal if normal @ up > 0 else -normal), int(mask.sum())
+    return {"normal": normal, "point": point, "count": count, "extent": (high - low).tolist(), "fill": fill}
+
+
+def _own_axes(flat) -> np.ndarray:
+    """2-d points (n, 2) turned onto the axes (every 5°) of their smallest 5–95 % box, longest
+    first: a table's extent is its length and width, whichever way SfM turned it."""
+    best = None
+    for angle in np.deg2rad(np.arange(0, 90, 5)):
+        turned = flat @ np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        low, high = np.percentile(turned, [5, 95], axis=0)
+        if best is None or np.prod(high - low) < best[0]:
+            best = (np.prod(high - low), turned[:, np.argsort(low - high)])
+    return best[1]
+
+
+def _largest_cluster(flat) -> np.ndarray:
+    """Mask of the largest connected cluster of 2-d points (n, 2), linking points closer than
+    CLUSTER_LINK times the median distance to their 4th nearest neighbour."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(flat)
+    k = min(5, len(flat))
+    spacing = float(np.median(tree.query(flat, k=k)[0][:, -1]))
+    span = float(np.linalg.norm(np.ptp(flat, axis=0))) or 1.0
+    pairs = tree.query_pairs(max(CLUSTER_LINK * spacing, 1e-6 * span), output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(flat), len(flat)))
+    _, labels = connected_components(graph, directed=False)
+    return labels == np.argmax(np.bincount(labels))
 
 
 def _area_filled(flat, low, high, cells: int = 16) -> float:
@@ -334,15 +416,34 @@ def _area_filled(flat, low, high, cells: int = 16) -> float:
     return len({tuple(i) for i in index}) / cells**2
 
 
-def choose_plane(candidates: list, choice: str) -> dict:
-    """The candidate `choice` names: 'largest' (most points), 'highest' or 'lowest'."""
+def choose_plane(candidates: list, choice: str, looked_at=None) -> dict:
+    """The candidate `choice` names: 'auto' (the highest plane under the point the cameras
+    look at, else the largest), 'largest' (most points), 'highest' or 'lowest'.
+
+    Under: the looked-at point lies within the plane's extent across it (with a margin of a
+    tenth of it) and no lower than LOOKED_AT_BELOW of the plane's distance to that point below it."""
     if choice not in SUPPORT_CHOICES:
         raise FignetError(f"support plane {choice!r} is not one of {', '.join(SUPPORT_CHOICES)}")
     if choice == "highest":
         return candidates[0]
     if choice == "lowest":
         return candidates[-1]
-    return max(candidates, key=lambda plane: plane["count"])
+    largest = max(candidates, key=lambda plane: plane["count"])
+    if choice == "largest" or looked_at is None:
+        return largest
+    under = [plane for plane in candidates if _is_under(plane, np.asarray(looked_at, float))]
+    return under[0] if under else largest
+
+
+def _is_under(plane: dict, target) -> bool:
+    """Whether `target` (3,) stands on `plane`: above it (or at most 2 cm per metre of the
+    plane's extent below it) and inside its 5–95 % extent widened by a tenth."""
+    normal, point = plane["normal"], plane["point"]
+    size = float(np.linalg.norm(plane["extent"]))
+    if (target - point) @ normal < -LOOKED_AT_BELOW * size:
+        return False
+    across = np.linalg.svd(np.eye(3) - np.outer(normal, normal))[0][:, :2]
+    return bool(np.all(np.abs((target - point) @ across) <= 0.6 * np.max(plane["extent"]) + 0.1 * size))
 
 
 def apply_similarity(cameras: Cameras, scale: float, rotation, translation) -> Cameras:

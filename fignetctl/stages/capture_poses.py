@@ -36,10 +36,11 @@ class Settings:
         choices=("auto", "plane", "cameras", "none"),
     )
     support_plane: str = setting(
-        "largest",
+        "auto",
         "Of several horizontal planes (a table on a floor), the support (z = 0; --camera-height is "
-        "measured from it): the one with the most points, the highest or the lowest.",
-        choices=("largest", "highest", "lowest"),
+        "measured from it): auto (the plane under what the cameras look at, else the largest), "
+        "the one with the most points, the highest or the lowest.",
+        choices=("auto", "largest", "highest", "lowest"),
     )
     camera_height: float | None = setting(
         None,
@@ -247,7 +248,7 @@ def _summary(cameras, alignment) -> str:
     return "\n".join(
         [
             line,
-            f"{len(rows)} horizontal planes (highest first; --support-plane largest|highest|lowest chooses):",
+            f"{len(rows)} horizontal planes (highest first; --support-plane auto|largest|highest|lowest chooses):",
             *rows,
         ]
     )

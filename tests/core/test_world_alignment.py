@@ -185,3 +185,105 @@ def test_capture_poses_prints_the_planes_it_found(tmp_path):
     assert "2 horizontal planes" in result.stderr and "-> z = +0.000 m" in result.stderr
     assert "z = -0.750 m" in result.stderr
     np.testing.assert_allclose(read_cameras(tmp_path / "c.npz").centres[:, 2], 0.5, atol=0.005)
+
+
+def room_scene(seed=0, walls=True, floor=True, ring_height=None) -> Cameras:
+    """Cameras 0.5 m above a 1 × 0.7 m table top at z = 0 (2 mm noise), looking at objects on it;
+    optionally a 6 × 6 m floor 0.75 m below (hidden under the table), the room's walls (0.75 m
+    below to 1.85 m above the table: at the table's height they hold more points than the
+    table), and a ring of points round a 3 × 3 m square at `ring_height` (a rim, a backdrop)."""
+    rng = np.random.default_rng(seed)
+    c2w = ring_cameras(16, radius=0.9, height=0.5)
+    parts = [
+        np.column_stack([rng.uniform([-0.5, -0.35], [0.5, 0.35], (600, 2)), rng.normal(0, 0.002, 600)]),
+        rng.uniform([-0.2, -0.2, 0.01], [0.2, 0.2, 0.2], (100, 3)),  # objects on the table
+    ]
+    if floor:
+        ground = np.column_stack([rng.uniform(-3, 3, (1500, 2)), rng.normal(-0.75, 0.003, 1500)])
+        parts.append(ground[(np.abs(ground[:, 0]) > 0.5) | (np.abs(ground[:, 1]) > 0.35)])
+    if walls:
+        along, side = rng.uniform(-3, 3, 2400), rng.integers(0, 4, 2400)
+        wall = np.column_stack([along, np.full(2400, 3.0), rng.uniform(-0.75, 1.85, 2400)])
+        parts.append(np.array([_turn(p, s) for p, s in zip(wall, side)]))
+    if ring_height is not None:
+        along, side = rng.uniform(-1.5, 1.5, 500), rng.integers(0, 4, 500)
+        ring = np.column_stack([along, np.full(500, 1.5), np.full(500, ring_height)])
+        parts.append(np.array([_turn(p, s) for p, s in zip(ring, side)]))
+    points = np.concatenate(parts)
+    K = np.tile(np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]]), (len(c2w), 1, 1))
+    names = np.array([f"view_{i:03d}.png" for i in range(len(c2w))])
+    return Cameras(names, K, c2w, 320, 240, points, np.zeros((len(points), 3), np.uint8))
+
+
+def _turn(point, quarter_turns):
+    """`point` turned by quarter_turns × 90° about z."""
+    x, y, z = point
+    for _ in range(quarter_turns):
+        x, y = -y, x
+    return np.array([x, y, z])
+
+
+def level_tilt_deg(aligned: Cameras, truth: Cameras) -> float:
+    """Angle between the aligned frame's z and the true z (through the similarity of the centres)."""
+    _, rotation, _ = wa.umeyama(aligned.centres, truth.centres)
+    return float(np.degrees(np.arccos(np.clip((rotation @ [0, 0, 1.0])[2], -1, 1))))
+
+
+def test_a_table_in_a_room_is_found_without_its_walls_and_levelled_on():
+    """The table's height band also holds the walls' points at that height (more of them than the
+    table's): only the table's connected patch is the plane, so both planes are listed with the
+    right heights and extents, and by default (the cameras look at the objects on the table)
+    the table is z = 0 and --camera-height from it gives the scale."""
+    rng = np.random.default_rng(7)
+    truth = room_scene()
+    sfm_frame = moved(truth, 0.37, random_rotation(rng), np.array([1.0, 2.0, -0.5]))
+    for choice in ("auto", "highest"):
+        aligned, alignment = wa.align(
+            sfm_frame, wa.AlignmentSettings(support_plane=choice, camera_height=0.5)
+        )
+        table, floor = alignment.planes
+        assert (table["chosen"], floor["chosen"]) == (True, False), choice
+        assert table["height"] == 0.0 and floor["height"] == pytest.approx(-0.75, abs=0.005)
+        assert table["extent"] == pytest.approx([0.9, 0.63], rel=0.05)  # 5–95 %, longest first
+        assert floor["extent"] == pytest.approx([5.4, 5.4], rel=0.08)
+        assert alignment.scale * 0.37 == pytest.approx(1.0, rel=0.002)
+        assert level_tilt_deg(aligned, truth) < 0.1
+        table_points = aligned.points[:600]
+        assert abs(np.median(table_points[:, 2])) < 0.002  # z = 0 is the table top, to 2 mm
+    _, lowest = wa.align(sfm_frame, wa.AlignmentSettings(support_plane="lowest", camera_height=1.25))
+    assert [p["chosen"] for p in lowest.planes] == [False, True]
+    assert lowest.scale * 0.37 == pytest.approx(1.0, rel=0.005)
+    assert [round(p["height"], 2) for p in lowest.planes] == [0.75, 0.0]
+
+
+def test_a_lone_table_top_is_the_one_plane():
+    rng = np.random.default_rng(8)
+    truth = room_scene(walls=False, floor=False)
+    aligned, alignment = wa.align(
+        moved(truth, 2.0, random_rotation(rng), np.zeros(3)), wa.AlignmentSettings(camera_height=0.5)
+    )
+    assert len(alignment.planes) == 1 and alignment.planes[0]["chosen"]
+    assert alignment.planes[0]["extent"] == pytest.approx([0.9, 0.63], rel=0.05)
+    assert level_tilt_deg(aligned, truth) < 0.1
+    assert abs(np.median(aligned.points[:600, 2])) < 0.002
+    np.testing.assert_allclose(aligned.centres[:, 2], 0.5, atol=0.002)
+
+
+def test_a_ring_of_points_at_one_height_is_not_a_plane():
+    """Points round a 3 × 3 m square at one height (walls' bottoms, a backdrop, a rim), even when
+    they outnumber the table's: not listed, not chosen with any --support-plane."""
+    truth = room_scene(walls=False, floor=False, ring_height=-0.3)
+    ring = truth.points[-500:]
+    assert wa._compact_plane(truth, ring, np.array([0, 0, 1.0]), ring[0], wa.AlignmentSettings()) is None
+    for choice in wa.SUPPORT_CHOICES:
+        aligned, alignment = wa.align(truth, wa.AlignmentSettings(support_plane=choice, camera_height=0.5))
+        assert len(alignment.planes) == 1, (choice, alignment.planes)
+        assert abs(np.median(aligned.points[:600, 2])) < 0.002, choice
+
+
+def test_largest_cluster_keeps_one_patch():
+    rng = np.random.default_rng(9)
+    patch = rng.uniform(0, 1, (400, 2))
+    far = rng.uniform(5, 5.3, (150, 2))  # denser, but fewer
+    mask = wa._largest_cluster(np.concatenate([patch, far]))
+    assert mask[:400].all() and not mask[400:].any()

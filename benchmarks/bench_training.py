@@ -5,8 +5,12 @@ after a warm-up (the normalizer statistics are frozen by then, as after step 500
 run; the batch-building processes have started), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers: the bundled models' training);
-every other is reported as a ratio to it. The last runs two data-parallel processes under
-torchrun (each its own batch of --batch-size, so twice the samples per step).
+every other is reported as a ratio to it. The serial design also builds each edge update's
+input by concatenating the edge's and its nodes' latents, as the network did before
+`network.edge_update` applied the first layer per node. The last runs two data-parallel
+processes under torchrun (each its own batch of --batch-size, so twice the samples per step).
+bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
+it is several times slower than float32.
 
     python benchmarks/bench_training.py data/movi-b-train.h5 --steps 20 --rounds 2 \
         -o benchmarks/results/training-throughput.json
@@ -20,34 +24,64 @@ import os
 import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.model.training import TrainingSettings, make_trainer, simulator_config_for
+from fignetctl.core.model import network
+from fignetctl.core.model.training import (
+    TrainingSettings,
+    make_trainer,
+    resolve_precision,
+    simulator_config_for,
+)
 
-# name: (state, static receivers, batch builders, precision, torch threads, processes)
+FIELDS = ("state", "static_receivers", "edge_inputs", "workers", "precision", "threads", "processes")
+FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
 SETTINGS = {
-    "serial (positions, fp32, 1 thread, graphs in the loop)": ("positions", True, 0, "fp32", 1, 1),
-    "velocities, no static receivers": ("velocities", False, 0, "fp32", 1, 1),
-    "+ 1 worker process": ("velocities", False, 1, "fp32", 1, 1),
-    "+ bf16": ("velocities", False, 1, "bf16", 1, 1),
-    "+ 2 threads": ("velocities", False, 1, "bf16", 2, 1),
-    "2 processes (torchrun), bf16, graphs in each": ("velocities", False, 0, "bf16", 1, 2),
+    "serial (positions, concatenated edge inputs, fp32, 1 thread, graphs in the loop)": (
+        "positions",
+        True,
+        "concatenated",
+        0,
+        "fp32",
+        1,
+        1,
+    ),
+    "velocities, no static receivers": ("velocities", False, "concatenated", 0, "fp32", 1, 1),
+    "+ first layer per node": ("velocities", False, "node blocks", 0, "fp32", 1, 1),
+    "+ 1 worker process": ("velocities", False, "node blocks", 1, "fp32", 1, 1),
+    "+ bf16": ("velocities", False, "node blocks", 1, "bf16", 1, 1),
+    f"+ 2 threads ({FAST})": ("velocities", False, "node blocks", 1, FAST, 2, 1),
+    f"2 processes (torchrun), {FAST}, graphs in each": ("velocities", False, "node blocks", 0, FAST, 1, 2),
 }
+if FAST != "bf16":
+    del SETTINGS["+ bf16"]
+
+
+def concatenated_edge_update(update, edge_latents, node_latents, edge_set):
+    """The edge update as the serial design computed it: the MLP of the concatenated latents."""
+    senders = network.gathered(node_latents, edge_set.senders)
+    receivers = network.gathered(node_latents, edge_set.receivers)
+    return update(torch.cat([edge_latents, senders, receivers], dim=-1))
 
 
 def measure(path, setting, args) -> float:
     """Samples per second of one setting over args.steps steps after a warm-up."""
-    if setting[5] > 1:
+    if setting[-1] > 1:
         return measure_distributed(path, setting, args)
     return measure_here(path, setting, args)
 
 
+edge_updates = {"concatenated": concatenated_edge_update, "node blocks": network.edge_update}
+
+
 def measure_here(path, setting, args) -> float:
-    state, static_receivers, workers, precision, threads, processes = setting
+    state, static_receivers, edge_inputs, workers, precision, threads, processes = setting
     torch.set_num_threads(threads)
+    network.edge_update = edge_updates[edge_inputs]
     simulator = simulator_config_for(
         "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
     )
@@ -61,9 +95,11 @@ def measure_here(path, setting, args) -> float:
         seed=args.seed,
     )
     trainer = make_trainer(path, simulator, config, workers=workers)
+    trainer.run(until_step=args.warmup)
+    clock = time.thread_time if args.single_core else time.perf_counter
+    started = clock()
     trainer.run()
-    seconds = trainer.history[-1]["seconds"] - trainer.history[args.warmup - 1]["seconds"]
-    return processes * args.steps * args.batch_size / seconds
+    return processes * args.steps * args.batch_size / (clock() - started)
 
 
 def measure_distributed(path, setting, args) -> float:
@@ -73,7 +109,7 @@ def measure_distributed(path, setting, args) -> float:
         str(torchrun),
         "--standalone",
         "--nproc_per_node",
-        str(setting[5]),
+        str(setting[-1]),
         __file__,
         path,
         "--as-rank",
@@ -88,10 +124,17 @@ def measure_distributed(path, setting, args) -> float:
         command,
         capture_output=True,
         text=True,
-        env={**os.environ, "OMP_NUM_THREADS": str(setting[4])},
+        env={**os.environ, "OMP_NUM_THREADS": str(setting[-2])},
         check=True,
     )
     return float(result.stdout.strip().splitlines()[-1])
+
+
+def cpu_name() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").exists() else []:
+        if line.startswith("model name"):
+            return f"{line.split(':', 1)[1].strip()}; bf16 {'native' if FAST == 'bf16' else 'emulated'}"
+    return "unknown"
 
 
 def main() -> None:
@@ -105,6 +148,12 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("-o", "--output", default=None)
     parser.add_argument(
+        "--single-core",
+        action="store_true",
+        help="only the one-process, one-thread settings without workers, timed by the CPU time of "
+        "the training thread, which other work on a busy host disturbs less than the wall clock",
+    )
+    parser.add_argument(
         "--as-rank", default=None, help=argparse.SUPPRESS
     )  # one process of a torchrun setting
     args = parser.parse_args()
@@ -113,25 +162,32 @@ def main() -> None:
         if os.environ.get("RANK", "0") == "0":
             print(rate)
         return
-    rates = {name: [] for name in SETTINGS}
+    settings = {
+        name: setting
+        for name, setting in SETTINGS.items()
+        if not args.single_core or setting[3:4] + setting[5:] == (0, 1, 1)
+    }
+    rates = {name: [] for name in settings}
     for _ in range(args.rounds):
-        for name, setting in SETTINGS.items():
+        for name, setting in settings.items():
             rates[name].append(measure(args.data, setting, args))
-            print(f"{name}: {rates[name][-1]:.1f} samples/s", flush=True)
-    baseline = statistics.median(rates[next(iter(SETTINGS))])
+            print(f"{name}: {rates[name][-1]:.2f} samples/s", flush=True)
+    baseline = statistics.median(rates[next(iter(settings))])
     rows = {
         name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline}
         for name, r in rates.items()
     }
-    print("\n| setting | samples/s | × serial |\n|---|---|---|")
+    unit = "samples per CPU-second" if args.single_core else "samples/s"
+    print(f"\n| setting | {unit} | × serial |\n|---|---|---|")
     for name, row in rows.items():
         print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |")
     if args.output:
-        fields = ("state", "static_receivers", "workers", "precision", "threads", "processes")
         result = {
             "data": args.data,
             "cpus": os.cpu_count(),
-            "settings": {k: dict(zip(fields, v)) for k, v in SETTINGS.items()},
+            "cpu": cpu_name(),
+            "clock": "training thread's CPU time" if args.single_core else "wall",
+            "settings": {k: dict(zip(FIELDS, v)) for k, v in settings.items()},
             "args": vars(args),
             "results": rows,
         }

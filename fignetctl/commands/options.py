@@ -62,12 +62,6 @@ json_option = click.option(
 )
 
 
-def json_path_checked(json_path, overwrite: bool):
-    """Deprecated: `optional_output(json_path, overwrite, "--json")`, which every other command
-    calls; kept only until commands/fit_nerf.py calls that too, then to be deleted."""
-    return optional_output(json_path, overwrite, "--json")
-
-
 def optional_output(path, overwrite: bool, param_name: str):
     """An optional output (--json, --rerun, --log-csv, ...) as a Path, or None when not given;
     refused at the start if it exists without --overwrite."""

@@ -32,6 +32,22 @@ class Settings:
     rays_per_batch: int | None = setting(
         None, "Rays per optimiser step.  [default: the preset's]", low=1, high=2**20
     )
+    region: str = setting(
+        "auto",
+        "Where to fit finely: scene (one grid over the scene box), prompts (around the objects of "
+        "--prompts), support:H (the support plane z = 0's extent, H high), a box X0,Y0,Z0,X1,Y1,Z1, "
+        "or auto (prompts with --prompts, else scene). The rest of the scene gets a coarse grid.",
+        metavar="auto|scene|prompts|support:H|BOX",
+    )
+    prompts: str | None = setting(
+        None, "prompts.json (render-views writes one) for --region prompts/auto.", metavar="PROMPTS.json"
+    )
+    region_margin: float = setting(
+        0.12,
+        "--region prompts: half-size of the cube around each prompted object (world units).",
+        low=0,
+        low_open=True,
+    )
     resume: bool = setting(False, "Continue the run saved in --output where it stopped.")
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
     device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
@@ -60,19 +76,22 @@ def run(
     saved there is continued). `progress` makes the step bar (a tqdm-like factory; none shown
     when None). Optionally a rerun recording, the same streamed to the viewer at
     `settings.rerun_connect` as the fit goes (a warning through `report`, stderr when None, if
-    none listens), and the --json summary. Returns the summary (output and the metrics stored in
-    nerf.pt) with a one-line `message` (held-out PSNR)."""
+    none listens), and the --json summary. `settings.region` chooses where the field is fitted
+    finely (core/nerf/region.py). Returns the summary (output and the metrics stored in nerf.pt:
+    held-out PSNR, on the region too, voxel sizes) with a one-line `message`."""
     import torch
 
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.nerf.config import preset_config
     from fignetctl.core.nerf.data import inputs_hash
+    from fignetctl.core.nerf.region import parse_region
     from fignetctl.core.nerf.training import finish, make_trainer
     from fignetctl.core.nerf.visualize import log_fit_step, log_held_out
     from fignetctl.core.provenance import stamp
     from fignetctl.core.rerun_log import live_recording, viewer_address
 
     check(settings)
+    region = parse_region(settings.region, settings.prompts, settings.region_margin)
     if settings.rerun_connect is not None:
         viewer_address(settings.rerun_connect)  # a bad address is refused before the fit, not after
     if settings.resume and overwrite:
@@ -92,7 +111,7 @@ def run(
     )
     data_hash = inputs_hash(images_dir, cameras)
     resume_from = path if settings.resume and path.exists() else None
-    trainer = make_trainer(images_dir, camera_set, config, device, resume_from, data_hash)
+    trainer = make_trainer(images_dir, camera_set, config, device, resume_from, data_hash, region)
     trainer.provenance = stamp(images=images_dir, cameras=cameras)
     with live_recording(settings.rerun_connect, rerun_path or path, report or to_stderr) as live:
         with (progress or no_progress)(
@@ -109,10 +128,7 @@ def run(
         metrics, renderings = finish(trainer, path)
         if live:
             log_held_out(*live, trainer, renderings)
-    message = (
-        f"held-out PSNR {metrics['held_out_psnr']:.2f} dB over {len(metrics['held_out'])} views, "
-        f"{metrics['train_seconds']:.0f} s of training"
-    )
+    message = _message(metrics)
     if rerun_path:
         from fignetctl.core.nerf.visualize import log_fit_to_rerun
 
@@ -120,3 +136,19 @@ def run(
     summary = {"output": str(path), **metrics}
     write_summary(json_path, summary, trainer.provenance)
     return {**summary, "message": message}
+
+
+def _message(metrics) -> str:
+    """The success line: held-out PSNR (and in the region) beside the voxel size, and the time."""
+    voxel = f"voxel {1000 * metrics['voxel_size']:.1f} mm"
+    region = metrics.get("region")
+    if region is not None:
+        size = " x ".join(f"{high - low:.2f}" for low, high in zip(*region))
+        voxel = (
+            f"region PSNR {metrics['held_out_region_psnr']:.2f} dB, {voxel} in the {size} m region "
+            f"({1000 * metrics['background_voxel_size']:.1f} mm outside)"
+        )
+    return (
+        f"held-out PSNR {metrics['held_out_psnr']:.2f} dB over {len(metrics['held_out'])} views, {voxel}, "
+        f"{metrics['train_seconds']:.0f} s of training"
+    )

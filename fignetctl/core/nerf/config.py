@@ -59,6 +59,14 @@ class NerfConfig:
     """Colour behind the scene: 'learned' (one RGB), 'white' or 'black'."""
     bounds_margin: float = 0.1
     """The scene box is the sparse points' 1-99 % box grown on each side by this fraction of its longest side."""
+    background_fraction: float = 0.5
+    """With a region: the scene box's grids (outside the region) have this fraction of the
+    resolutions above along the box's longest side; the region's grids have the resolutions above
+    along the region's longest side."""
+    region_max_vertices: int = 0
+    """With a region: its grids' resolutions are scaled down (at every step alike) until its density
+    grid has at most this many vertices at the end; 0: as many as `grid_resolution` over the whole
+    scene box would have, so the fine grid costs what the one-grid fit's grid costs."""
     checkpoint_every: int = 250
     """Steps between checkpoints."""
     seed: int = 0

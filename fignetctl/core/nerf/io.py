@@ -1,4 +1,4 @@
-"""`nerf.pt`, format `fignetctl.nerf`, format_version 1.
+"""`nerf.pt`, format `fignetctl.nerf`, format_version 1 or 2.
 
 A torch file loaded with `weights_only=True` (nothing is unpickled but tensors and plain values):
 
@@ -7,7 +7,11 @@ A torch file loaded with `weights_only=True` (nothing is unpickled but tensors a
     image size trained on), model (state_dict), training_state (optional: step, optimizer,
     generator state, history, seconds)
 
-Writes are atomic. Anything else raises FormatError in one line.
+Version 2 (a field fitted in a region, fit-nerf --region) adds `region` (2x3 list: the box of
+the fine grids), `region_density_shape` and `region_feature_shape`, and the weights
+`field.region_density_grid`, `field.region_feature_grid`, `occupancy.region_occupied`. A field
+without a region is written as version 1, so older fignetctl reads it; version 1 files load as
+before. Writes are atomic. Anything else raises FormatError in one line.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from fignetctl.core.containers import (
 from fignetctl.core.nerf.config import NerfConfig
 
 FORMAT = "fignetctl.nerf"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 
 
 def save_nerf(path, model, metrics=None, inputs=None, training_state=None, provenance=None) -> Path:
@@ -40,12 +45,18 @@ def save_nerf(path, model, metrics=None, inputs=None, training_state=None, prove
         "metrics": json.dumps(metrics or {}),
         "inputs": json.dumps(inputs or {}),
     }
-    return write_torch_document(path, FORMAT, FORMAT_VERSION, model, fields, training_state, provenance)
+    version = 1
+    if model.field.has_region:
+        version = FORMAT_VERSION
+        fields["region"] = model.region.tolist()
+        fields["region_density_shape"] = list(model.field.region_density_grid.shape[2:])
+        fields["region_feature_shape"] = list(model.field.region_feature_grid.shape[1:])
+    return write_torch_document(path, FORMAT, version, model, fields, training_state, provenance)
 
 
 def read_nerf_payload(path) -> dict:
     """The checked dictionary of a nerf.pt."""
-    return read_torch_document(path, "nerf", "nerf.pt", FORMAT, FORMAT_VERSION)
+    return read_torch_document(path, "nerf", "nerf.pt", FORMAT, READABLE_VERSIONS)
 
 
 def load_nerf(path, device="cpu", with_training_state=False):
@@ -55,20 +66,41 @@ def load_nerf(path, device="cpu", with_training_state=False):
     payload = read_nerf_payload(path)
     try:
         config = NerfConfig.from_json(payload["config"])
-        bounds = torch.as_tensor(payload["bounds"], dtype=torch.float64)
-        if bounds.shape != (2, 3) or not torch.isfinite(bounds).all() or (bounds[1] <= bounds[0]).any():
-            raise ValueError(f"bounds {payload['bounds']!r} are not a box (lower, upper)")
-        model = NerfModel(config, payload["bounds"])
-        shape = tuple(int(s) for s in payload["density_shape"])
-        stored = payload["model"]["field.density_grid"].shape
-        if tuple(stored) != (1, 1, *shape):
-            raise ValueError(f"density_shape {list(shape)} does not match the stored grid {list(stored)}")
-        model.field.density_grid = torch.nn.Parameter(torch.zeros(1, 1, *shape))
-        model.occupancy.occupied = torch.ones(shape, dtype=torch.bool)
-        if "feature_shape" in payload:  # the colour grid may have grown during training
-            model.field.feature_grid = torch.nn.Parameter(
-                torch.zeros(1, *(int(s) for s in payload["feature_shape"]))
+        bounds = _box(payload["bounds"], "bounds")
+        region = None
+        if payload.get("format_version") == 2:
+            region = _box(payload["region"], "region")
+            if (region[0] < bounds[0] - 1e-5).any() or (region[1] > bounds[1] + 1e-5).any():
+                raise ValueError(f"region {payload['region']!r} is not inside bounds {payload['bounds']!r}")
+        model = NerfModel(
+            config, payload["bounds"], region=payload.get("region") if region is not None else None
+        )
+        grids = [("density_grid", "density_shape", "feature_grid", "feature_shape", "occupied")]
+        if region is not None:
+            grids.append(
+                (
+                    "region_density_grid",
+                    "region_density_shape",
+                    "region_feature_grid",
+                    "region_feature_shape",
+                    "region_occupied",
+                )
             )
+        for density, density_shape, features, feature_shape, occupied in grids:
+            shape = tuple(int(s) for s in payload[density_shape])
+            stored = payload["model"][f"field.{density}"].shape
+            if tuple(stored) != (1, 1, *shape):
+                raise ValueError(
+                    f"{density_shape} {list(shape)} does not match the stored grid {list(stored)}"
+                )
+            setattr(model.field, density, torch.nn.Parameter(torch.zeros(1, 1, *shape)))
+            setattr(model.occupancy, occupied, torch.ones(shape, dtype=torch.bool))
+            if feature_shape in payload:  # the colour grid may have grown during training
+                setattr(
+                    model.field,
+                    features,
+                    torch.nn.Parameter(torch.zeros(1, *(int(s) for s in payload[feature_shape]))),
+                )
         model.load_state_dict(payload["model"])
         model.metrics = json.loads(payload.get("metrics", "{}"))
         model.inputs = json.loads(payload.get("inputs", "{}"))
@@ -78,3 +110,10 @@ def load_nerf(path, device="cpu", with_training_state=False):
     if with_training_state:
         return model, payload.get("training_state")
     return model
+
+
+def _box(value, name) -> torch.Tensor:
+    box = torch.as_tensor(value, dtype=torch.float64)
+    if box.shape != (2, 3) or not torch.isfinite(box).all() or (box[1] <= box[0]).any():
+        raise ValueError(f"{name} {value!r} are not a box (lower, upper)")
+    return box

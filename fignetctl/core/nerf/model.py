@@ -10,7 +10,7 @@ from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.field import GridField, OccupancyGrid
-from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
+from fignetctl.core.nerf.renderer import RegionSteps, render_samples, sample_along_rays
 from fignetctl.core.pinhole import pixel_rays
 from fignetctl.errors import FignetError
 
@@ -27,15 +27,21 @@ class Rendering(typing.NamedTuple):
 
 
 class NerfModel(nn.Module):
-    """A radiance field on a scene box, with rendering for any pinhole camera."""
+    """A radiance field on a scene box, with rendering for any pinhole camera; with a `region`
+    (2, 3) inside the box, fine grids there and coarse ones elsewhere (GridField)."""
 
-    def __init__(self, config: NerfConfig, bounds, density_resolution=None):
+    def __init__(self, config: NerfConfig, bounds, density_resolution=None, region=None):
         super().__init__()
         if config.background not in BACKGROUNDS:
             raise FignetError(f"background {config.background!r} is not one of {sorted(BACKGROUNDS)}")
         self.config = config
-        self.field = GridField(bounds, config, density_resolution)
-        self.occupancy = OccupancyGrid(bounds, self.field.density_grid.shape[2:])
+        self.field = GridField(bounds, config, density_resolution, region=region)
+        self.occupancy = OccupancyGrid(
+            bounds,
+            self.field.density_grid.shape[2:],
+            region,
+            self.field.region_density_grid.shape[2:] if region is not None else None,
+        )
         colour = torch.tensor(BACKGROUNDS[config.background])
         self.background_logit = nn.Parameter(
             torch.logit(colour.clamp(1e-3, 1 - 1e-3)), requires_grad=config.background == "learned"
@@ -47,6 +53,18 @@ class NerfModel(nn.Module):
         return self.field.bounds.detach().cpu().numpy().astype(np.float64)
 
     @property
+    def region(self) -> np.ndarray | None:
+        """(2, 3) box of the fine grids, or None (one grid over the scene box)."""
+        if not self.field.has_region:
+            return None
+        return self.field.region.detach().cpu().numpy().astype(np.float64)
+
+    @property
+    def voxel_size(self) -> float:
+        """Edge of the finest density-grid voxel (the region's when there is one), world units."""
+        return self.field.finest_voxel_size
+
+    @property
     def background(self):
         """(3,) RGB behind the scene."""
         if self.config.background == "learned":
@@ -55,19 +73,19 @@ class NerfModel(nn.Module):
 
     @property
     def step_length(self) -> float:
-        """World distance between samples along a ray."""
-        return self.config.step_ratio * self.field.voxel_size
+        """World distance between samples along a ray; with a region a `RegionSteps`: this
+        distance outside the region, carrying the region and the finer one inside it."""
+        step = self.config.step_ratio * self.field.voxel_size
+        if not self.field.has_region:
+            return step
+        fine = self.config.step_ratio * self.field.region_voxel_size
+        return RegionSteps(step, self.field.region[0], self.field.region[1], fine)
 
     def refresh_occupancy(self) -> None:
         """Re-mark empty space from the current densities (at the density grid's resolution)."""
-        if tuple(self.occupancy.occupied.shape) != tuple(self.field.density_grid.shape[2:]):
-            self.occupancy.occupied = torch.ones(
-                self.field.density_grid.shape[2:], dtype=torch.bool, device=self.occupancy.occupied.device
-            )
-        reference_step = (
-            self.config.step_ratio * self.field.reference_voxel
-        )  # alpha_init is defined at this step
-        self.occupancy.refresh(self.field, reference_step, self.config.occupancy_threshold)
+        # alpha_init is defined at each grid's reference step
+        steps = [self.config.step_ratio * voxel for voxel in self.field.reference_voxels()]
+        self.occupancy.refresh(self.field, steps[0], self.config.occupancy_threshold, steps[-1])
 
     # -- the API later stages use -------------------------------------------------------------
     def density(self, points):
@@ -144,7 +162,7 @@ class NerfModel(nn.Module):
         o = torch.as_tensor(origins.reshape(-1, 3), dtype=torch.float32, device=device)
         d = torch.as_tensor(directions.reshape(-1, 3), dtype=torch.float32, device=device)
         out = self.render_rays(o, d, warp=warp, chunk=chunk)
-        as_image = lambda x, *shape: x.reshape(height, width, *shape).float().cpu().numpy()  # noqa: E731
+        as_image = lambda x, *shape: x.reshape(height, width, *shape).float().cpu().numpy()
         return Rendering(
             as_image(out["rgb"].clamp(0, 1), 3), as_image(out["depth"]), as_image(out["opacity"])
         )

@@ -22,22 +22,40 @@ from fignetctl.core.nerf.rays import ray_box_intersection
 
 @dataclasses.dataclass
 class RaySamples:
-    """Evenly spaced samples along R rays, S per ray (padded)."""
+    """Samples along R rays, S per ray (padded), in order along each ray."""
 
     t: torch.Tensor  # (R, S) ray parameter of each sample
     points: torch.Tensor  # (R, S, 3) world positions
-    step: torch.Tensor  # (R,) world distance between neighbouring samples
+    step: torch.Tensor  # (R,) world distance between neighbouring samples, or (R, S) per sample (region)
     valid: torch.Tensor  # (R, S) inside [near, far)
+
+
+class RegionSteps(float):
+    """A step length (world units) for the space outside a region that also carries the region
+    (`low`, `high`, (3,) tensors) and the finer step inside it (`fine`): what
+    `NerfModel.step_length` is for a field with a region, so every caller of
+    `sample_along_rays(..., model.step_length)` samples the region at the fine step. As a
+    number it is the coarse step."""
+
+    def __new__(cls, step: float, low, high, fine: float):
+        value = super().__new__(cls, step)
+        value.low, value.high, value.fine = low, high, float(fine)
+        return value
 
 
 def sample_along_rays(origins, directions, low, high, step_length: float, jitter=None):
     """Samples every `step_length` (world units) inside the box; `jitter` (R,) in [0, 1)
-    offsets the first sample (training), else samples start half a step in."""
+    offsets the first sample (training), else samples start half a step in. With a
+    `RegionSteps`, samples inside its region are at most `fine` apart and those outside at
+    most `step_length` apart, each with the length of ray it stands for as its step ((R, S)
+    `step`; they add up to the ray's chord through the box)."""
     near, far = ray_box_intersection(origins, directions, low, high)
     norms = directions.norm(dim=-1).clamp(min=1e-12)
+    offset = torch.full_like(near, 0.5) if jitter is None else jitter
+    if isinstance(step_length, RegionSteps):
+        return _sample_with_region(origins, directions, near, far, norms, offset, step_length)
     step_t = step_length / norms
     count = int(torch.clamp(((far - near) / step_t).max().ceil(), min=1).item()) if len(origins) else 1
-    offset = torch.full_like(near, 0.5) if jitter is None else jitter
     index = torch.arange(count, device=origins.device, dtype=origins.dtype)
     t = near[:, None] + (index[None, :] + offset[:, None]) * step_t[:, None]
     valid = t < far[:, None]
@@ -45,14 +63,64 @@ def sample_along_rays(origins, directions, low, high, step_length: float, jitter
     return RaySamples(t=t, points=points, step=step_t * norms, valid=valid)
 
 
+def _segment(start, end, step_t, offset):
+    """Samples of the segments [start, end) (R,): each cut into ceil(length / step_t) equal
+    pieces, one sample in each (at `offset` of it). Returns t (R, n), valid (R, n) and the
+    pieces' length in ray parameter (R,), so that a segment's samples add up to its length."""
+    length = (end - start).clamp(min=0)
+    pieces = torch.ceil(length / step_t - 1e-6).clamp(min=0)
+    count = int(pieces.max().item()) if len(start) else 0
+    index = torch.arange(max(count, 1), device=start.device, dtype=start.dtype)
+    piece = length / pieces.clamp(min=1)
+    t = start[:, None] + (index[None, :] + offset[:, None]) * piece[:, None]
+    return t, index[None, :] < pieces[:, None], piece
+
+
+def _sample_with_region(origins, directions, near, far, norms, offset, steps: RegionSteps):
+    """Three segments per ray: before the region, in it (fine) and after it, each sampled
+    evenly so that its samples' steps add up to its length; the valid samples first."""
+    low, high = (b.to(device=origins.device, dtype=origins.dtype) for b in (steps.low, steps.high))
+    region_near, region_far = ray_box_intersection(origins, directions, low, high)
+    region_near, region_far = torch.maximum(region_near, near), torch.minimum(region_far, far)
+    hits = region_far > region_near
+    coarse_t, fine_t = float(steps) / norms, steps.fine / norms
+    parts = [
+        _segment(near, torch.where(hits, region_near, far), coarse_t, offset),
+        _segment(region_near, torch.where(hits, region_far, region_near), fine_t, offset),
+        _segment(torch.where(hits, region_far, far), far, coarse_t, offset),
+    ]
+    t = torch.cat([part[0] for part in parts], dim=1)
+    valid = torch.cat([part[1] for part in parts], dim=1)
+    step = torch.cat([(part[2] * norms)[:, None].expand_as(part[0]) for part in parts], dim=1)
+    # the valid samples first in each row, in order (they are in order along the ray already)
+    count = max(1, int(valid.sum(dim=1).max().item())) if len(t) else 1
+    rows, columns = valid.nonzero(as_tuple=True)
+    slots = (valid.cumsum(dim=1) - 1)[rows, columns]
+    packed_t = far[:, None].expand(-1, count).clone()  # padding: beyond every valid sample
+    packed_t[rows, slots] = t[rows, columns]
+    packed_step = torch.zeros_like(packed_t)
+    packed_step[rows, slots] = step[rows, columns]
+    packed_valid = torch.zeros_like(packed_t, dtype=torch.bool)
+    packed_valid[rows, slots] = True
+    points = origins[:, None, :] + packed_t[..., None] * directions[:, None, :]
+    return RaySamples(t=packed_t, points=points, step=packed_step, valid=packed_valid)
+
+
+def _per_sample(step, rows=None, cols=None):
+    """A RaySamples step as (R, S)-broadcastable, or at samples (rows, cols)."""
+    if rows is None:
+        return step if step.dim() == 2 else step[:, None]
+    return step[rows, cols] if step.dim() == 2 else step[rows]
+
+
 def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
-    """Volume rendering of densities `sigma` (R, S) at spacing `step` (R,).
+    """Volume rendering of densities `sigma` (R, S) at spacing `step` (R,) or (R, S).
 
     colour_of(mask (R, S) bool) -> (n, 3) colours of the masked samples; only samples with
     weight above `weight_threshold` are coloured. background : (3,) or (R, 3).
     returns rgb (R, 3), depth (R,) (Σ w t / Σ w, 0 where nothing is hit), opacity (R,), weights (R, S)
     """
-    optical = sigma * step[:, None]
+    optical = sigma * _per_sample(step)
     alpha = 1.0 - torch.exp(-optical)
     transmittance = torch.exp(-(torch.cumsum(optical, dim=-1) - optical))
     weights = transmittance * alpha
@@ -109,7 +177,7 @@ def render_samples(
     if transmittance_threshold > 0 and len(query):
         with torch.no_grad():
             optical = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
-            optical[rows, cols] = field.density(query) * samples.step[rows]
+            optical[rows, cols] = field.density(query) * _per_sample(samples.step, rows, cols)
             before = torch.cumsum(optical, dim=-1) - optical
             alive = (before < -torch.log(torch.tensor(transmittance_threshold)))[rows, cols]
         rows, cols, query, query_directions = rows[alive], cols[alive], query[alive], query_directions[alive]

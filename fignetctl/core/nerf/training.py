@@ -22,13 +22,14 @@ from fignetctl.core.nerf.evaluation import evaluate_views, psnr
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
 from fignetctl.core.nerf.rays import scene_bounds
+from fignetctl.core.nerf.region import RegionRequest, check_seen, resolve_region
 from fignetctl.errors import FignetError
 
 
 def make_optimizer(model: NerfModel, config: NerfConfig):
     groups = [
         {
-            "params": [model.field.density_grid, model.field.feature_grid],
+            "params": [*model.field.density_grids(), *model.field.feature_grids()],
             "lr": config.learning_rate_grid,
             "base_lr": config.learning_rate_grid,
         },
@@ -133,8 +134,11 @@ class NerfTrainer:
         self.model.eval()
 
     def evaluate(self, depth_truth=None):
-        """Held-out PSNR (and depth error with ground truth), and the renderings."""
-        return evaluate_views(self.model, self.views, self.held_out_views, depth_truth)
+        """Held-out PSNR (on every pixel, and with a region on the pixels whose rays pass
+        through it; depth error with ground truth), and the renderings."""
+        return evaluate_views(
+            self.model, self.views, self.held_out_views, depth_truth, region=self.model.region
+        )
 
     def state(self) -> dict:
         return {
@@ -168,9 +172,11 @@ class NerfTrainer:
 
 
 def make_trainer(
-    image_dir, cameras, config: NerfConfig, device="cpu", resume_from=None, data_hash=""
+    image_dir, cameras, config: NerfConfig, device="cpu", resume_from=None, data_hash="", region=None
 ) -> NerfTrainer:
-    """A trainer on the images of `cameras` in `image_dir`, resumed from a nerf.pt if given."""
+    """A trainer on the images of `cameras` in `image_dir`, resumed from a nerf.pt if given (with
+    the region it was fitted in). `region`: a region.RegionRequest (or a (2, 3) box) to fit
+    finely; None or 'scene': one grid over the scene box."""
     if resume_from is not None:
         model, state = load_nerf(resume_from, device=device, with_training_state=True)
         if state is None:
@@ -185,9 +191,13 @@ def make_trainer(
         return trainer
     views = load_views(image_dir, cameras, config.max_image_side)
     bounds = scene_bounds(cameras.points, cameras.c2w, config.bounds_margin)
+    if isinstance(region, RegionRequest):
+        region = resolve_region(region, cameras, bounds)
+    if region is not None:
+        check_seen(region, views.cameras, views.split(config.holdout_every)[0])
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        model = NerfModel(config, bounds)
+        model = NerfModel(config, bounds, region=region)
     return NerfTrainer(model, views, config, device, data_hash)
 
 
@@ -196,13 +206,19 @@ def finish(trainer: NerfTrainer, path, depth_truth=None):
     trainer.model.refresh_occupancy()
     result, renderings = trainer.evaluate(depth_truth)
     last = trainer.history[-1] if trainer.history else {}
+    model = trainer.model
     metrics = {
         "held_out_psnr": result["psnr"],
+        "held_out_region_psnr": result.get("region_psnr"),
         "held_out": result["per_view"],
         "steps": trainer.step,
         "train_seconds": trainer.seconds,
         "train_batch_psnr": last.get("psnr"),
-        "occupied_fraction": trainer.model.occupancy.fraction,
+        "occupied_fraction": model.occupancy.fraction,
+        "region": None if model.region is None else model.region.tolist(),
+        "voxel_size": model.voxel_size,
+        "background_voxel_size": model.field.voxel_size,
+        "region_occupied_fraction": model.occupancy.region_fraction,
     }
     trainer.save(path, metrics)
     return metrics, renderings

@@ -72,6 +72,13 @@ class LazyGroup(click.Group):
             raise click.ClickException(os_error_sentence(error)) from None
 
 
+class FlagsFormatter(logging.Formatter):
+    """Log lines as the command line reads them: a setting named in backticks becomes its flag."""
+
+    def format(self, record) -> str:
+        return as_flags(super().format(record))
+
+
 def as_flags(message: str) -> str:
     """The library names a setting in backticks by its Python name (`sim_scale`, `gravity=plane`);
     on the command line that is its flag (--sim-scale, --gravity plane)."""
@@ -154,7 +161,9 @@ def cli(verbose, quiet, progress_mode):
 
     set_progress_mode("never" if quiet else progress_mode)
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose + 1, 2)]
-    logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(FlagsFormatter("%(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=level, handlers=[handler])
 
 
 def main():

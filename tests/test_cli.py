@@ -151,6 +151,19 @@ def test_settings_named_by_the_library_become_flags_on_the_command_line():
     assert as_flags("a file from `fignetctl train`") == "a file from `fignetctl train`"
 
 
+def test_warnings_logged_by_the_library_name_flags_on_the_command_line(tmp_path):
+    """A library warning that names a setting reaches the command line's stderr as its flag."""
+    script = (
+        "import logging, sys; from fignetctl.cli import cli; "
+        "cli.get_command(None, 'show').callback = lambda **kw: logging.getLogger('fignetctl.core.x').warning("
+        "'set `threshold` lower, or fit-nerf `region=prompts`'); "
+        "sys.argv = ['fignetctl', 'show', 'x.h5']; cli(prog_name='fignetctl')"
+    )
+    (tmp_path / "x.h5").write_bytes(b"")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=tmp_path)
+    assert "set --threshold lower, or fit-nerf --region prompts" in done.stderr, done.stderr
+
+
 def test_no_library_message_names_a_command_line_flag():
     """fignetctl/core names settings by their Python names; the CLI turns them into flags. Every
     string in core but docstrings is searched for a flag (--name), and no core module parses

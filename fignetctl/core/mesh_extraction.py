@@ -91,6 +91,16 @@ class ExtractionSettings:
     median prompted view (`mask_agreement`): a mesh that does not look like what was prompted."""
     warn_mask_iou: float = 0.8
     """... and a warning names each view where they overlap less than this."""
+    warn_extent: float = 0.1
+    """A warning names each view and image axis where the mesh's outline is wider or taller than
+    the mask (pixel bounding boxes, `outline_extents`) by more than this fraction, or narrower
+    or shorter by more than it: the mesh is that much too large or too small there."""
+    max_extent: float = 0.5
+    """The mesh is refused when, in the median prompted view, its outline's width or height is
+    off the mask's by more than this fraction."""
+    warn_voxel: float = 0.2
+    """A warning when the field's finest voxel is larger than this fraction of the object
+    mesh's smallest side: its size is then uncertain by about a voxel."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -123,9 +133,10 @@ def robust_box(points, trim_percent=2.0):
     )
 
 
-def check_views_agree(boxes, names):
+def check_views_agree(boxes, names, pixels=None):
     """boxes : list of (2, 3) per-view boxes. Each view's box must overlap the union of the
-    others' (the masks show one object in 3D); a FignetError names the view that does not."""
+    others' (the masks show one object in 3D); a FignetError names the view that does not (and
+    the masks' pixel counts `pixels` when given: tiny masks mean poor masks, not other objects)."""
     if len(boxes) < 2:
         return
     boxes = np.asarray(boxes)
@@ -136,8 +147,14 @@ def check_views_agree(boxes, names):
         gap = np.maximum(np.maximum(low - box[1], box[0] - high), 0.0).max()
         if gap > 0.25 * size:
             raise FignetError(
-                f"the mask in {names[i]} does not overlap the other views' masks in 3D (a gap of {gap:.3g} world units); "
-                "are the prompts on the same object?"
+                f"the mask in {names[i]} does not overlap the other views' masks in 3D (a gap of {gap:.3g} world units"
+                + (
+                    f"; masks of {', '.join(f'{n} px' for n in pixels)} in {', '.join(names)}"
+                    if pixels
+                    else ""
+                )
+                + "); are the prompts on the same object? If they are, the masks are wrong (a coarse NeRF's "
+                "depth: fit-nerf's `region=prompts`; or give `masks`)"
             )
 
 
@@ -438,7 +455,7 @@ class Extraction:
 def object_box_from_points(points_per_view, names, settings: ExtractionSettings):
     """Per-view 3D points of the masks -> V_o (2, 3), padded; checks the views agree."""
     boxes = [robust_box(p, settings.trim_percent) for p in points_per_view]
-    check_views_agree(boxes, names)
+    check_views_agree(boxes, names, [len(p) for p in points_per_view])
     box = padded_box(robust_box(np.concatenate(points_per_view), settings.trim_percent), settings.padding)
     if not np.all(np.isfinite(box)) or not (box[1] - box[0]).max() > 0:
         raise FignetError(
@@ -776,6 +793,73 @@ def mask_agreement(mesh, views) -> dict:
         view.name: iou(silhouette(mesh.vertices, mesh.faces, view, view.mask.shape), view.mask)
         for view in views
     }
+
+
+def bounding_extent(mask):
+    """(width, height) in pixels of a mask's bounding box, each None when the mask touches the
+    image's left/right (top/bottom) border (the object may go on past it) or is empty."""
+    mask = np.asarray(mask, bool)
+    if not mask.any():
+        return None, None
+    columns, rows = np.flatnonzero(mask.any(axis=0)), np.flatnonzero(mask.any(axis=1))
+    width = None if columns[0] == 0 or columns[-1] == mask.shape[1] - 1 else int(columns[-1] - columns[0] + 1)
+    height = None if rows[0] == 0 or rows[-1] == mask.shape[0] - 1 else int(rows[-1] - rows[0] + 1)
+    return width, height
+
+
+def outline_extents(mesh, views) -> dict:
+    """{view name: {"width": [mesh px, mask px], "height": [...]}}: the bounding boxes of the mesh's
+    outline (`silhouette`) and of the view's mask; an axis is left out where either touches the
+    image border."""
+    result = {}
+    for view in views:
+        drawn = bounding_extent(silhouette(mesh.vertices, mesh.faces, view, view.mask.shape))
+        masked = bounding_extent(view.mask)
+        result[view.name] = {
+            axis: [drawn[i], masked[i]]
+            for i, axis in enumerate(("width", "height"))
+            if drawn[i] is not None and masked[i] is not None
+        }
+    return result
+
+
+def check_outline_extents(extents: dict, settings: ExtractionSettings) -> list:
+    """Compare the mesh's outline with the masks per view and image axis (`outline_extents`).
+    FignetError when the median view's worst axis is off by more than max_extent; else a
+    warning line (returned and logged) for each view and axis off by more than warn_extent."""
+    worst = {}
+    for name, axes in extents.items():
+        errors = {axis: drawn / masked - 1.0 for axis, (drawn, masked) in axes.items() if masked > 0}
+        if errors:
+            worst[name] = max(errors.items(), key=lambda item: abs(item[1]))
+    if not worst:
+        return []
+    median = float(np.median([abs(error) for _, error in worst.values()]))
+    advice = (
+        "fit a finer NeRF around the objects (fit-nerf's `region=prompts`), add prompted views, "
+        f"or set `threshold` (now {settings.threshold:g}; lower grows the mesh, higher shrinks it)"
+    )
+    if median > settings.max_extent:
+        name = max(worst, key=lambda key: abs(worst[key][1]))
+        axis, error = worst[name]
+        raise FignetError(
+            f"the mesh's size does not match the masks: its outline's {axis} is {100 * error:+.0f} % off "
+            f"the mask's in {name} and over {100 * settings.max_extent:.0f} % in the median view; {advice}"
+        )
+    warnings = []
+    for name, axes in extents.items():
+        for axis, (drawn, masked) in axes.items():
+            error = drawn / masked - 1.0 if masked > 0 else 0.0
+            if abs(error) > settings.warn_extent:
+                sense = {"width": ("wider", "narrower"), "height": ("taller", "shorter")}[axis]
+                warnings.append(
+                    f"{name}: the mesh's outline is {100 * abs(error):.0f} % {sense[error < 0]} than the mask "
+                    f"({drawn} px vs {masked} px, image {axis}), so the mesh is about that much too "
+                    f"{'large' if error > 0 else 'small'} along that direction; {advice}"
+                )
+    for line in warnings:
+        log.warning("%s", line)
+    return warnings
 
 
 def check_mask_agreement(agreement: dict, settings: ExtractionSettings) -> None:

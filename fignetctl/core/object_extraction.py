@@ -16,10 +16,12 @@ from fignetctl.core.mesh_extraction import (
     ExtractionSettings,
     View,
     check_mask_agreement,
+    check_outline_extents,
     choose_threshold,
     consistent_box,
     extract_object,
     mask_agreement,
+    outline_extents,
     view_masks,
 )
 from fignetctl.errors import FignetError, FormatError
@@ -39,10 +41,15 @@ class ObjectExtraction:
     checks: dict
 
 
-def extract(density, settings: ExtractionSettings, views=(), box=None, segmentation=None) -> ObjectExtraction:
+def extract(
+    density, settings: ExtractionSettings, views=(), box=None, segmentation=None, voxel=None
+) -> ObjectExtraction:
     """The object given by `views` (View, with prompts or masks; masks are made from prompts by
     `segmentation`) or by `box` (x0, y0, z0, x1, y1, z1), meshed from `density` with its
-    environment; the mesh's outline is checked against the masks (`check_mask_agreement`)."""
+    environment; the mesh's outline is checked against the masks (`check_mask_agreement`: IoU,
+    `check_outline_extents`: width and height per view), and warnings are logged (and listed in
+    checks["warnings"]) for an outline off the masks, a mesh that is not watertight, and a field
+    whose finest `voxel` (world units, when known) is coarse for the object's size."""
     if box is not None:
         box = np.array(box, np.float64).reshape(2, 3)
         if np.any(box[1] <= box[0]):
@@ -57,13 +64,40 @@ def extract(density, settings: ExtractionSettings, views=(), box=None, segmentat
         name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
     }
     check_mask_agreement(agreement, settings)
+    extents = outline_extents(extraction.object_mesh, views)
+    warnings = check_outline_extents(extents, settings)
+    warnings += _mesh_warnings(extraction.object_mesh, settings, voxel)
     checks = {
         "mask_iou": agreement,
+        "outline_extent_px": extents,
+        "warnings": warnings,
         "watertight": bool(extraction.object_mesh.is_watertight),
         "threshold": settings.threshold,
         "threshold_choice": threshold,
     }
     return ObjectExtraction(extraction, settings, views, checks)
+
+
+def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
+    """Warning lines (also logged) for an object mesh that is not watertight and for a field
+    whose finest `voxel` is over `warn_voxel` of the mesh's smallest side."""
+    warnings = []
+    if not mesh.is_watertight:
+        warnings.append(
+            "the object mesh is not watertight (it has open edges): its volume, centre of mass and "
+            "inertia are not defined and the simulation needs a closed mesh; try more `faces` "
+            "(decimation can open it) or another `threshold`"
+        )
+    smallest = float(np.min(mesh.extents)) if len(mesh.vertices) else 0.0
+    if voxel is not None and smallest > 0 and voxel > settings.warn_voxel * smallest:
+        warnings.append(
+            f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
+            f"object's smallest side ({smallest:.3g}), so its size is uncertain by about a voxel; fit a "
+            "finer NeRF around the objects (fit-nerf's `region=prompts`)"
+        )
+    for line in warnings:
+        log.warning("%s", line)
+    return warnings
 
 
 def _threshold(density, box, views, settings: ExtractionSettings):

@@ -37,6 +37,17 @@ class SegmentationSettings:
     """A plane must hold this fraction of the points within max_size of the prompt to count as background."""
     min_opacity: float = 0.5
     """A prompt on a pixel whose rendered opacity is below this is on empty space."""
+    depth_noise: float = 0.0
+    """The depth's expected error (world units), e.g. the NeRF's finest voxel. A coarse field's
+    depth scatters about a plane by about a voxel: with `plane_tolerance` RANSAC may then find
+    no support, only thin slabs of noise that cut through the object and leave a sliver of a
+    mask. When the mask holds less than `min_near_fraction` of the depth-connected pixels near
+    the prompt, it is made again with planes `noise_planes` times this thick, and the larger
+    of the two is kept."""
+    noise_planes: float = 1.5
+    """See `depth_noise`."""
+    min_near_fraction: float = 0.5
+    """See `depth_noise`."""
 
 
 def check_prompt(u, v, width, height, depth, opacity=None, settings=SegmentationSettings(), where="prompt"):
@@ -71,14 +82,26 @@ def prompt_mask(image, depth, K, u, v, settings=SegmentationSettings()):
     image : (H, W, 3) uint8 RGB; depth : (H, W) z-depth; K : (3, 3)
     returns (H, W) bool
     """
-    import cv2
-
     points = camera_frame_points(depth, K)
     distance = np.linalg.norm(points - points[v, u], axis=-1)
     distance[~np.isfinite(distance)] = np.inf
     near = depth_connected(depth, (v, u), settings.depth_jump) & (distance < 0.5 * settings.max_size)
-    support = plane_pixels(points, distance < settings.max_size, points[v, u], settings)
-    labels = np.full(depth.shape, cv2.GC_PR_BGD, np.uint8)
+    tolerance = settings.plane_tolerance * settings.max_size
+    mask = _prompt_mask(image, points, distance, near, u, v, settings, tolerance)
+    noisy = settings.noise_planes * settings.depth_noise
+    if noisy > tolerance and mask.sum() < settings.min_near_fraction * near.sum():
+        retry = _prompt_mask(image, points, distance, near, u, v, settings, noisy)
+        if retry.sum() > mask.sum():
+            mask = retry
+    return mask
+
+
+def _prompt_mask(image, points, distance, near, u, v, settings, tolerance):
+    """`prompt_mask` with planes of this `tolerance` (world units)."""
+    import cv2
+
+    support = plane_pixels(points, distance < settings.max_size, points[v, u], settings, tolerance=tolerance)
+    labels = np.full(distance.shape, cv2.GC_PR_BGD, np.uint8)
     labels[near & ~support] = cv2.GC_PR_FGD
     labels[(distance > settings.max_size) | support] = cv2.GC_BGD
     cv2.circle(labels, (int(u), int(v)), int(settings.seed_radius), int(cv2.GC_FGD), -1)
@@ -103,16 +126,18 @@ def grabcut(image, labels, iterations):
     return (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
 
 
-def plane_pixels(points, neighbourhood, prompt_point, settings, planes=3):
+def plane_pixels(points, neighbourhood, prompt_point, settings, planes=3, tolerance=None):
     """(H, W) bool: pixels on the large planes around the prompt, found one after another by
     RANSAC among the neighbourhood's 3D points (planes through the prompt's own point are not
     taken, nor planes holding fewer than `settings.min_plane_fraction` of the points). The first
-    is the surface the object stands on: the pixels behind it count too."""
+    is the surface the object stands on: the pixels behind it count too. `tolerance` (world
+    units; default plane_tolerance × max_size): how near a plane a point must be to be on it."""
     rng = np.random.default_rng(0)
     candidates = points[neighbourhood]
     candidates = candidates[np.isfinite(candidates).all(axis=1)]
     candidates = candidates[rng.choice(len(candidates), min(3000, len(candidates)), replace=False)]
-    total, tolerance = len(candidates), settings.plane_tolerance * settings.max_size
+    total = len(candidates)
+    tolerance = settings.plane_tolerance * settings.max_size if tolerance is None else tolerance
     result = np.zeros(points.shape[:2], bool)
     for index in range(planes):
         plane = _ransac_plane(candidates, prompt_point, tolerance, rng)

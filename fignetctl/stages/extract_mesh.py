@@ -130,12 +130,16 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
     from fignetctl.core.nerf.io import load_nerf
     from fignetctl.core.object_extraction import extract
     from fignetctl.core.provenance import stamp
+    from fignetctl.core.segmentation import SegmentationSettings
 
     started = time.perf_counter()
     cameras = read_cameras(inputs.cameras)
     model = load_nerf(inputs.nerf, device=device)
+    voxel = _voxel_size(model)
+    # a coarse field's depth scatters by about a voxel: the masks' plane fits allow for it
+    segmentation = dataclasses.replace(segmentation or SegmentationSettings(), depth_noise=voxel or 0.0)
     views = [] if inputs.box is not None else _views(inputs, cameras, model)
-    result = extract(model.density, settings, views, inputs.box, segmentation)
+    result = extract(model.density, settings, views, inputs.box, segmentation, voxel)
     extraction, views, checks = result.extraction, result.views, result.checks
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
     provenance = stamp(
@@ -161,6 +165,19 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
         "provenance": provenance,
         "seconds": time.perf_counter() - started,
     }
+
+
+def _voxel_size(model):
+    """The field's finest voxel (world units), or None when the model does not say."""
+    field = getattr(model, "field", None)
+    for owner, name in ((model, "voxel_size"), (field, "finest_voxel_size"), (field, "voxel_size")):
+        try:
+            value = float(getattr(owner, name))
+        except (AttributeError, TypeError, ValueError):
+            continue
+        if math.isfinite(value) and value > 0:
+            return value
+    return None
 
 
 def _views(inputs: ExtractionInputs, cameras, model) -> list:
@@ -374,6 +391,11 @@ def _message(summary) -> str:
         f"object: {summary['object_faces']} faces, {summary['object_size']} world units"
         f"{'' if summary['watertight'] else ' (not watertight)'}; {_threshold_note(summary)}{outline}; "
         f"environment: {summary['environment_faces']} faces; {summary['seconds']:.1f} s"
+        + (
+            f"; {len(warned)} warning{'s' * (len(warned) > 1)} above"
+            if (warned := summary.get("warnings"))
+            else ""
+        )
     )
 
 

@@ -66,6 +66,14 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     assert f"threshold {summary['threshold']:g} (auto: best median outline IoU" in result.output
     assert volume.settings["threshold"] == summary["threshold"]
     assert volume.settings["threshold_choice"] == choice and volume.settings["auto_threshold"]
+    # the size check: the outline's and the mask's pixel boxes per prompted view (a coarse 48-voxel
+    # grid on 160x120 views: within the refusal bound, 50 %, not always within the warning's 10 %)
+    extents = summary["outline_extent_px"]
+    assert set(extents) == set(summary["mask_iou"]) and volume.settings["outline_extent_px"] == extents
+    pairs = [pair for axes in extents.values() for pair in axes.values()]
+    assert pairs and all(abs(drawn / masked - 1) <= 0.5 for drawn, masked in pairs), extents
+    assert isinstance(summary["warnings"], list)
+    assert (f"; {len(summary['warnings'])} warning" in result.output) == bool(summary["warnings"])
     obj = trimesh.load(tmp_path / "out" / "object.obj", force="mesh")
     truth = trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh")
     assert len(obj.faces) <= 200 and obj.volume > 0

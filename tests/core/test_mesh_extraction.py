@@ -426,3 +426,109 @@ def test_a_step_in_density_is_meshed_at_its_edge_and_ties_keep_the_default():
     assert mx._best_level({25.0: 0.9, 50.0: 0.85, 100.0: 0.915, 200.0: None}, settings) == 100.0
     with pytest.raises(FignetError, match="no density threshold from 12.5 to 200 gives a surface"):
         mx.choose_threshold(lambda p: np.zeros(len(p)), box, views, settings)
+
+
+def test_a_mesh_too_wide_for_its_masks_is_warned_per_view_and_axis_and_a_far_off_one_refused(caplog):
+    """`check_outline_extents`: the outline's bounding box against the mask's, per view and axis."""
+    import trimesh
+
+    settings = mx.ExtractionSettings()
+    box = trimesh.creation.box([0.3, 0.2, 0.1])
+    views = [_box_view(eye, (160, 120)) for eye in ([0.8, -0.5, 0.6], [0.0, -0.9, 0.2], [-0.6, 0.5, 0.5])]
+    for view in views:
+        view.mask = mx.silhouette(box.vertices, box.faces, view, view.depth.shape)
+    extents = mx.outline_extents(box, views)
+    assert all(drawn == masked for axes in extents.values() for drawn, masked in axes.values())
+    assert all(set(axes) == {"width", "height"} for axes in extents.values())
+    assert mx.check_outline_extents(extents, settings) == []  # the true mesh: no warning
+    wide = box.copy()
+    wide.apply_scale([1.3, 1.0, 1.0])  # 30 % too long along x: wider in the views that see x across
+    with caplog.at_level("WARNING"):
+        warnings = mx.check_outline_extents(mx.outline_extents(wide, views), settings)
+    assert warnings and all(
+        "too large" in line and "fit-nerf's `region=prompts`" in line for line in warnings
+    )
+    assert any(views[1].name in line and "image width" in line for line in warnings)  # x is across view 1
+    assert caplog.text.count("than the mask (") == len(warnings)
+    small = box.copy()
+    small.apply_scale(0.8)
+    assert any(
+        "shorter" in line and "too small" in line
+        for line in mx.check_outline_extents(mx.outline_extents(small, views), settings)
+    )
+    huge = box.copy()
+    huge.apply_scale(1.8)
+    with pytest.raises(FignetError, match="size does not match the masks"):
+        mx.check_outline_extents(mx.outline_extents(huge, views), settings)
+
+
+def test_an_outline_cut_by_the_image_border_is_not_compared():
+    mask = np.zeros((20, 30), bool)
+    mask[5:10, 0:12] = True  # touches the left border: its width is unknown
+    assert mx.bounding_extent(mask) == (None, 5)
+    mask[:] = False
+    mask[3:8, 4:9] = True
+    assert mx.bounding_extent(mask) == (5, 5)
+    assert mx.bounding_extent(np.zeros((4, 4), bool)) == (None, None)
+
+
+def test_extraction_warns_of_an_open_mesh_and_of_a_coarse_field(caplog):
+    import trimesh
+
+    from fignetctl.core.object_extraction import _mesh_warnings
+
+    settings = mx.ExtractionSettings()
+    closed = trimesh.creation.box([0.1, 0.1, 0.05])
+    assert _mesh_warnings(closed, settings, voxel=0.004) == []  # 8 % of the 5 cm side
+    opened = trimesh.Trimesh(closed.vertices, closed.faces[:-2])
+    with caplog.at_level("WARNING"):
+        warnings = _mesh_warnings(opened, settings, voxel=0.023)
+    assert len(warnings) == 2 and "not watertight" in warnings[0] and "closed mesh" in warnings[0]
+    assert "46 % of the object's smallest side" in warnings[1] and "`region=prompts`" in warnings[1]
+    assert "not watertight" in caplog.text
+
+
+def test_plane_fits_allow_for_a_coarse_fields_depth_noise(tiny_capture):
+    """Given the depth's noise (a coarse NeRF's voxel), a mask cut to a sliver by thin planes of
+    noise is made again with thicker planes; prompt masks on depth scattered by ~1.5 cm still
+    match the true masks (and no good mask is made worse)."""
+    import cv2
+    from scipy import ndimage
+
+    from fignetctl.core.cameras import read_cameras
+    from fignetctl.core.segmentation import SegmentationSettings, iou, prompt_mask
+
+    cameras = read_cameras(tiny_capture / "ground_truth" / "cameras.npz")
+    depth = np.load(tiny_capture / "ground_truth" / "depth.npz")["depth"]
+    truth = np.load(tiny_capture / "ground_truth" / "masks.npz")["masks"]
+    settings = SegmentationSettings(depth_noise=0.02)
+    scores = []
+    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+        for point in obj["points"]:
+            index = cameras.index_of(point["image"])
+            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            noise = ndimage.gaussian_filter(
+                np.random.default_rng(index).standard_normal(depth[index].shape), 2
+            )
+            noisy = depth[index] + 0.015 * noise / noise.std()
+            mask = prompt_mask(image, noisy, cameras.K[index], point["u"], point["v"], settings)
+            scores.append(iou(mask, truth[index] == obj["id"]))
+    assert np.median(scores) >= 0.9 and min(scores) >= 0.6, scores
+    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+        for point in obj["points"]:
+            index = cameras.index_of(point["image"])
+            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            args = (image, depth[index], cameras.K[index], point["u"], point["v"])
+            true = truth[index] == obj["id"]
+            # on exact depth the retry only ever takes a mask that fits the object as well or better
+            assert iou(prompt_mask(*args, settings), true) >= iou(prompt_mask(*args), true) - 0.01
+
+
+def test_views_that_do_not_overlap_are_refused_with_the_masks_sizes():
+    near = np.array([[0.0, 0.0, 0.0], [0.1, 0.1, 0.1]])
+    mx.check_views_agree([near, near + 0.02, near - 0.01], ["a", "b", "c"], [900, 800, 950])
+    with pytest.raises(
+        FignetError,
+        match=r"mask in c .*masks of 15 px, 271 px, 14 px in a, b, c.*`region=prompts`; or give `masks`",
+    ):
+        mx.check_views_agree([near, near + 0.01, near + 0.5], ["a", "b", "c"], [15, 271, 14])

@@ -117,43 +117,22 @@ def sum_messages_into_receivers(
     return summed.index_add_(0, receivers.reshape(-1), messages.reshape(-1, latent_size))
 
 
+def edge_update_inputs(
+    edge_latents: torch.Tensor, node_latents: torch.Tensor, edge_set: EdgeSet
+) -> torch.Tensor:
+    """[edge latent, sender latent(s), receiver latent(s)]: (E, 3L), or (E, 9L) for face–face."""
+    return torch.cat(
+        [edge_latents, gathered(node_latents, edge_set.senders), gathered(node_latents, edge_set.receivers)],
+        dim=-1,
+    )
+
+
 def gathered(node_latents: torch.Tensor, nodes: torch.Tensor) -> torch.Tensor:
     """The latents of `nodes` (E,) or (E, 3), flattened to (E, L) or (E, 3L). index_select, not
     fancy indexing: its backward is a sum into rows (index_add), 2-3x faster on the CPU than
     fancy indexing's accumulating index_put."""
     width = node_latents.shape[1] * (nodes.shape[1] if nodes.dim() == 2 else 1)
     return node_latents.index_select(0, nodes.reshape(-1)).reshape(nodes.shape[0], width)
-
-
-def edge_update(
-    update: nn.Sequential, edge_latents: torch.Tensor, node_latents: torch.Tensor, edge_set: EdgeSet
-) -> torch.Tensor:
-    """update([edge latent, sender latent(s), receiver latent(s)]) without building that (E, 3L) or
-    (E, 9L) input: the first layer's weight splits into a block per part, W·[e, s₁…, r₁…] =
-    W_e·e + Σ W_s·s + Σ W_r·r, and each node block is applied once per node, then gathered per
-    edge. The same function of the same weights as the concatenation (tested). Worth it where
-    edges outnumber nodes (a training batch's face–face set): a face–face edge's first layer then
-    costs 3L instead of 9L multiply-adds per output, and its (E, 9L) input is never stored for
-    the backward pass; with fewer edges than nodes (a rollout's few contacts) the concatenation
-    costs less and is what runs."""
-    edges, edge_width, node_width = edge_latents.shape[0], edge_latents.shape[1], node_latents.shape[1]
-    if edges < node_latents.shape[0]:
-        senders, receivers = (
-            gathered(node_latents, edge_set.senders),
-            gathered(node_latents, edge_set.receivers),
-        )
-        return update(torch.cat([edge_latents, senders, receivers], dim=-1))
-    first = update[0][0]
-    hidden = first.weight.shape[0]
-    nodes = torch.cat([edge_set.senders.reshape(edges, -1), edge_set.receivers.reshape(edges, -1)], 1)
-    columns = nodes.shape[1]  # 2 (sender, receiver), or 6 for face–face
-    # each node's contribution in each column: (N, L) @ (L, columns·H), one matrix product
-    node_weights = first.weight[:, edge_width:].reshape(hidden, columns, node_width).permute(2, 1, 0)
-    per_node = (node_latents @ node_weights.reshape(node_width, columns * hidden)).reshape(-1, hidden)
-    rows = (nodes * columns + torch.arange(columns, device=nodes.device)).reshape(-1)
-    from_nodes = per_node.index_select(0, rows).reshape(edges, columns, hidden).sum(1)
-    from_edge = torch.nn.functional.linear(edge_latents, first.weight[:, :edge_width], first.bias)
-    return update[1](update[0][1:](from_edge + from_nodes))
 
 
 class GraphNetBlock(nn.Module):
@@ -176,9 +155,9 @@ class GraphNetBlock(nn.Module):
         """node_latents : (N, L); edge_latents : name -> (E, L) or (E, 3L). Returns both updated."""
         new_edge_latents = {}
         summed_messages = []
-        for name, mlp in self.edge_updates.items():
+        for name, edge_update in self.edge_updates.items():
             edge_set = graph.edge_sets[name]
-            update = edge_update(mlp, edge_latents[name], node_latents, edge_set)
+            update = edge_update(edge_update_inputs(edge_latents[name], node_latents, edge_set))
             new_edge_latents[name] = edge_latents[name] + update
             messages = update.reshape(*edge_set.receivers.shape, self.latent_size)
             summed_messages.append(sum_messages_into_receivers(messages, edge_set.receivers, graph.num_nodes))

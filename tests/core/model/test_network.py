@@ -17,8 +17,6 @@ from fignetctl.core.model.graph import (
 from fignetctl.core.model.network import (
     PRESETS,
     EncodeProcessDecode,
-    build_mlp_with_layer_norm,
-    edge_update,
     sum_messages_into_receivers,
 )
 
@@ -241,32 +239,3 @@ def test_tiny_model_overfits_a_fixed_random_target():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < losses[0] / 10
-
-
-@pytest.mark.parametrize("name", [FACE_FACE, MESH_TO_OBJECT])
-@pytest.mark.parametrize("num_edges", [3, 40])  # fewer and more edges than the 10 nodes
-def test_edge_update_equals_the_mlp_of_the_concatenated_latents(name, num_edges):
-    """Both ways edge_update computes it (per-node blocks of the first layer gathered per edge,
-    or the concatenation itself) give the MLP of [edge, senders, receivers], and its gradients."""
-    generator = torch.Generator().manual_seed(3)
-    latent = TINY.latent_size
-    parts = 3 if name == FACE_FACE else 1
-    edge_set = random_edge_set(name, num_edges, 10, generator)
-    torch.manual_seed(0)
-    mlp = build_mlp_with_layer_norm(3 * parts * latent, parts, TINY)
-    nodes = torch.randn(10, latent, generator=generator, requires_grad=True)
-    edges = torch.randn(num_edges, parts * latent, generator=generator, requires_grad=True)
-
-    def flat(latents, index):
-        return torch.stack([latents[i] for i in index.reshape(num_edges, -1).reshape(-1)]).reshape(
-            num_edges, -1
-        )
-
-    reference = mlp(torch.cat([edges, flat(nodes, edge_set.senders), flat(nodes, edge_set.receivers)], -1))
-    weights = torch.randn(reference.shape, generator=generator)
-    expected = torch.autograd.grad((reference * weights).sum(), [nodes, edges, *mlp.parameters()])
-    found = edge_update(mlp, edges, nodes, edge_set)
-    torch.testing.assert_close(found, reference, rtol=1e-5, atol=1e-5)
-    gradients = torch.autograd.grad((found * weights).sum(), [nodes, edges, *mlp.parameters()])
-    for got, want in zip(gradients, expected):
-        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)

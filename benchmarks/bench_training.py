@@ -5,9 +5,7 @@ after a warm-up (the normalizer statistics are frozen by then, as after step 500
 run; the batch-building processes have started), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers: the bundled models' training);
-every other is reported as a ratio to it. The serial design also builds each edge update's
-input by concatenating the edge's and its nodes' latents, as the network did before
-`network.edge_update` applied the first layer per node. The last runs two data-parallel
+every other is reported as a ratio to it. The last runs two data-parallel
 processes under torchrun (each its own batch of --batch-size, so twice the samples per step).
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
@@ -30,7 +28,6 @@ from pathlib import Path
 import torch
 
 from fignetctl.core.atomic import atomic_path
-from fignetctl.core.model import network
 from fignetctl.core.model.training import (
     TrainingSettings,
     make_trainer,
@@ -38,34 +35,18 @@ from fignetctl.core.model.training import (
     simulator_config_for,
 )
 
-FIELDS = ("state", "static_receivers", "edge_inputs", "workers", "precision", "threads", "processes")
+FIELDS = ("state", "static_receivers", "workers", "precision", "threads", "processes")
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
 SETTINGS = {
-    "serial (positions, concatenated edge inputs, fp32, 1 thread, graphs in the loop)": (
-        "positions",
-        True,
-        "concatenated",
-        0,
-        "fp32",
-        1,
-        1,
-    ),
-    "velocities, no static receivers": ("velocities", False, "concatenated", 0, "fp32", 1, 1),
-    "+ first layer per node": ("velocities", False, "node blocks", 0, "fp32", 1, 1),
-    "+ 1 worker process": ("velocities", False, "node blocks", 1, "fp32", 1, 1),
-    "+ bf16": ("velocities", False, "node blocks", 1, "bf16", 1, 1),
-    f"+ 2 threads ({FAST})": ("velocities", False, "node blocks", 1, FAST, 2, 1),
-    f"2 processes (torchrun), {FAST}, graphs in each": ("velocities", False, "node blocks", 0, FAST, 1, 2),
+    "serial (positions, fp32, 1 thread, graphs in the loop)": ("positions", True, 0, "fp32", 1, 1),
+    "velocities, no static receivers": ("velocities", False, 0, "fp32", 1, 1),
+    "+ 1 worker process": ("velocities", False, 1, "fp32", 1, 1),
+    "+ bf16": ("velocities", False, 1, "bf16", 1, 1),
+    f"+ 2 threads ({FAST})": ("velocities", False, 1, FAST, 2, 1),
+    f"2 processes (torchrun), {FAST}, graphs in each": ("velocities", False, 0, FAST, 1, 2),
 }
 if FAST != "bf16":
     del SETTINGS["+ bf16"]
-
-
-def concatenated_edge_update(update, edge_latents, node_latents, edge_set):
-    """The edge update as the serial design computed it: the MLP of the concatenated latents."""
-    senders = network.gathered(node_latents, edge_set.senders)
-    receivers = network.gathered(node_latents, edge_set.receivers)
-    return update(torch.cat([edge_latents, senders, receivers], dim=-1))
 
 
 def measure(path, setting, args) -> float:
@@ -75,13 +56,9 @@ def measure(path, setting, args) -> float:
     return measure_here(path, setting, args)
 
 
-edge_updates = {"concatenated": concatenated_edge_update, "node blocks": network.edge_update}
-
-
 def measure_here(path, setting, args) -> float:
-    state, static_receivers, edge_inputs, workers, precision, threads, processes = setting
+    state, static_receivers, workers, precision, threads, processes = setting
     torch.set_num_threads(threads)
-    network.edge_update = edge_updates[edge_inputs]
     simulator = simulator_config_for(
         "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
     )
@@ -165,7 +142,7 @@ def main() -> None:
     settings = {
         name: setting
         for name, setting in SETTINGS.items()
-        if not args.single_core or setting[3:4] + setting[5:] == (0, 1, 1)
+        if not args.single_core or setting[2:3] + setting[4:] == (0, 1, 1)
     }
     rates = {name: [] for name in settings}
     for _ in range(args.rounds):

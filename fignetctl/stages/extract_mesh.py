@@ -135,9 +135,9 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
     started = time.perf_counter()
     cameras = read_cameras(inputs.cameras)
     model = load_nerf(inputs.nerf, device=device)
-    voxel = _voxel_size(model)
+    voxel = model.voxel_size
     # a coarse field's depth scatters by about a voxel: the masks' plane fits allow for it
-    segmentation = dataclasses.replace(segmentation or SegmentationSettings(), depth_noise=voxel or 0.0)
+    segmentation = dataclasses.replace(segmentation or SegmentationSettings(), depth_noise=voxel)
     views = [] if inputs.box is not None else _views(inputs, cameras, model)
     result = extract(model.density, settings, views, inputs.box, segmentation, voxel)
     extraction, views, checks = result.extraction, result.views, result.checks
@@ -165,19 +165,6 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
         "provenance": provenance,
         "seconds": time.perf_counter() - started,
     }
-
-
-def _voxel_size(model):
-    """The field's finest voxel (world units), or None when the model does not say."""
-    field = getattr(model, "field", None)
-    for owner, name in ((model, "voxel_size"), (field, "finest_voxel_size"), (field, "voxel_size")):
-        try:
-            value = float(getattr(owner, name))
-        except (AttributeError, TypeError, ValueError):
-            continue
-        if math.isfinite(value) and value > 0:
-            return value
-    return None
 
 
 def _views(inputs: ExtractionInputs, cameras, model) -> list:

@@ -43,7 +43,10 @@ FILE_COMMANDS = [
     ("build-graph {volume} -o {out}.h5", ["volume"]),
     ("build-graph {volume} --object {object} -o {out}.h5", ["object"]),
     ("render-nerf {nerf} {cameras} -o {out}", ["nerf", "cameras"]),
-    ("extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --device cpu -o {out}", ["nerf"]),
+    (
+        "extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --max-voxel 1 --device cpu -o {out}",
+        ["nerf"],
+    ),
     (
         "rerender {nerf} {volume} {trajectory} --cameras {cameras} --camera 0 --device cpu -o {out}.mp4",
         ["trajectory", "volume"],

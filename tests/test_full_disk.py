@@ -24,7 +24,7 @@ WRITERS = [
     ("import-kubric {kubric} --assets {assets} -o {out}", False),
     ("make-dataset --preset movi-b -n 1 -o {out}", False),
     ("bench-memory {trajectory} --samples 1 --repeats 1 --size tiny --json {out}", False),
-    ("extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --device cpu -o {out}", True),
+    ("extract-mesh {nerf} --cameras {cameras} --box " + BOX + " --max-voxel 1 --device cpu -o {out}", True),
     ("render-nerf {nerf} {cameras} -o {out}", True),
 ]
 SUFFIXES = {

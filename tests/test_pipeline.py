@@ -29,7 +29,7 @@ def test_the_main_job_runs_every_stage_and_leaves_its_files(tmp_path):
         f"FIGNETCTL={bin_dir / 'fignetctl'}",
         f"PYTHON={sys.executable}",
         "NERF_FLAGS=--steps 200",
-        "EXTRACT_FLAGS=--threshold 15",
+        "EXTRACT_FLAGS=--threshold 15 --max-voxel 1",  # a 200-step field is coarse
         "FACES=300",
         "STEPS=6",
         "EVERY=3",

@@ -81,6 +81,11 @@ class ExtractionSettings:
     """When masks are redrawn: GrabCut may still give the object a ring this wide around its
     splat, as a fraction of the splat's size (√area); the NeRF often holds an object's lower
     part only faintly, so its splat falls short there."""
+    hull_mask_reach: float = 0.15
+    """... but not to pixels whose surface point (the view's depth) is further than this
+    fraction of V_o's longest side from the object's voxels: the support around the object,
+    which GrabCut would take in where its colour is near the object's (a white ball on a
+    speckled tray floor)."""
     hull_mask_clearance: float = 0.1
     """When masks are redrawn, the splat leaves out the object's lowest part, this fraction of
     V_o's height above the support: there the hull also holds the support's own density beside
@@ -101,6 +106,20 @@ class ExtractionSettings:
     warn_voxel: float = 0.2
     """A warning when the field's finest voxel is larger than this fraction of the object
     mesh's smallest side: its size is then uncertain by about a voxel."""
+    max_voxel: float = 0.35
+    """The mesh is refused when the field's finest voxel is larger than this fraction of its
+    smallest side: the object is then under three voxels thick and its size is not measured."""
+    carve_margin: float | None = 0.5
+    """The object's density is cut to the masks' visual hull (`carve`): to zero where a grid
+    point projects more than this many pixels (+ 0.5) outside a view's mask (None: no carving)."""
+    max_close_voxels: int = 4
+    """When the object's decimated mesh is not closed (decimation pinches the handles a noisy
+    field's tunnels give the surface), its solid is closed (`closed`) with 1, 2, ... up to
+    this many voxels, filling gaps up to twice as wide, until the mesh is."""
+    fill_hidden: bool = True
+    """With carving: the part of the visual hull that every view sees only through the object
+    (`hidden`: behind the depth of its surface) is filled, so an object is solid where no view
+    saw inside it (a NeRF leaves such space empty: a ball's hidden lower half)."""
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -293,17 +312,112 @@ def keep_large_components(vertices, faces, keep_fraction=0.1, log_level=logging.
     return trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
 
 
-def decimate(mesh, faces):
-    """Quadric-error decimation (Garland–Heckbert) to at most `faces` faces (0: unchanged)."""
+def decimate(mesh, faces, keep_fraction=0.1):
+    """Quadric-error decimation (Garland–Heckbert) to at most `faces` faces (0: unchanged).
+    Decimation can pinch a closed surface (two sheets collapsed onto one edge, a face glued to
+    its reverse); a closed input then stays closed (`unpinched`), and the slivers cut off at a
+    pinch below `keep_fraction` of the largest part's volume are dropped."""
+    import trimesh
+
     if not faces or len(mesh.faces) <= faces:
         return mesh
     simplified = mesh.simplify_quadric_decimation(face_count=int(faces))
     simplified.remove_unreferenced_vertices()
     if len(simplified.faces) == 0:
         raise FignetError(f"decimation to {faces} faces left nothing; ask for more faces")
+    if mesh.is_watertight and not simplified.is_watertight:
+        parts = trimesh.Trimesh(*unpinched(simplified.vertices, simplified.faces), process=False).split(
+            only_watertight=False
+        )
+        volumes = np.array([abs(signed_volume(part.vertices, part.faces)) for part in parts])
+        kept = [part for part, volume in zip(parts, volumes) if volume >= keep_fraction * volumes.max()]
+        simplified = trimesh.util.concatenate(kept) if len(kept) > 1 else kept[0]
     if signed_volume(simplified.vertices, simplified.faces) < 0:
         simplified.invert()
     return simplified
+
+
+def closed(values, threshold, voxels) -> np.ndarray:
+    """`values` (a density grid) with the gaps of its solid (> `threshold`) up to about
+    2 × `voxels` wide filled (a morphological closing) and its enclosed voids filled, both
+    raised to 2 × threshold: a noisy field leaves tunnels and bubbles inside an object, which
+    give its surface handles that decimation pinches, and a solid object has none."""
+    from scipy import ndimage
+
+    solid = values > threshold
+    structure = ndimage.generate_binary_structure(3, 1)
+    padded = np.pad(solid, voxels)
+    filled = ndimage.binary_closing(padded, structure, iterations=voxels)[(slice(voxels, -voxels),) * 3]
+    filled = ndimage.binary_fill_holes(filled | solid)
+    return np.where(filled & ~solid, 2 * threshold, values).astype(values.dtype)
+
+
+def unpinched(vertices, faces):
+    """(vertices, faces) of a closed surface with its pinches taken apart: faces glued to their
+    own reverse are dropped, the faces round an edge of more than two are paired with their
+    neighbours in angle about it (`_radial_pairs`), and a vertex where faces meet in separate
+    fans (across such an edge, or at a single point) becomes one vertex per fan, at the same
+    place. Afterwards every edge has two faces, so the mesh is watertight where its only
+    defects were pinches. Vertices are renumbered."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces)
+    _, copy, copies = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    faces = faces[copies[copy.reshape(-1)] == 1]
+    flat = faces.reshape(-1)  # corner c is vertex flat[c]; its half-edge runs to corner following[c]
+    corners = np.arange(flat.size)
+    following = corners - corners % 3 + (corners + 1) % 3
+    _, edge, count = np.unique(
+        np.sort(np.stack([flat, flat[following]], axis=1), axis=1),
+        axis=0,
+        return_inverse=True,
+        return_counts=True,
+    )
+    edge = edge.reshape(-1)
+    paired = np.flatnonzero(count[edge] == 2)
+    paired = paired[np.argsort(edge[paired], kind="stable")]
+    first, second = [paired[0::2]], [paired[1::2]]
+    crowded = np.flatnonzero(count[edge] > 2)
+    crowded = crowded[np.argsort(edge[crowded], kind="stable")]
+    for group in np.split(crowded, np.flatnonzero(np.diff(edge[crowded])) + 1) if len(crowded) else []:
+        pairs = _radial_pairs(group, vertices, flat, following)
+        first.append(pairs[:, 0])
+        second.append(pairs[:, 1])
+    first, second = np.concatenate(first), np.concatenate(second)
+    same_way = flat[first] == flat[second]  # opposite ways where the winding is consistent
+    rows = np.concatenate([first, following[first]])
+    columns = np.concatenate(
+        [np.where(same_way, second, following[second]), np.where(same_way, following[second], second)]
+    )
+    graph = coo_matrix((np.ones(len(rows)), (rows, columns)), shape=(flat.size, flat.size))
+    count, fan = connected_components(graph, directed=False)
+    new_vertices = np.zeros((count, 3))
+    new_vertices[fan] = vertices[flat]
+    return new_vertices, fan.reshape(-1, 3)
+
+
+def _radial_pairs(half_edges, vertices, flat, following) -> np.ndarray:
+    """(K, 2) half-edges of one edge paired so that each pair is two faces next to each other
+    in angle about the edge and runs opposite ways (a closed sheet through the edge); (0, 2)
+    when no such pairing exists."""
+    a = vertices[flat[half_edges[0]]]
+    axis = vertices[flat[following[half_edges[0]]]] - a
+    axis /= np.linalg.norm(axis)
+    third = half_edges - half_edges % 3 + (half_edges + 2) % 3
+    spoke = vertices[flat[third]] - a
+    spoke -= np.outer(spoke @ axis, axis)
+    reference = spoke[0] / max(np.linalg.norm(spoke[0]), 1e-300)
+    angle = np.arctan2(spoke @ np.cross(axis, reference), spoke @ reference)
+    ordered = half_edges[np.argsort(angle)]
+    forward = flat[ordered] == flat[half_edges[0]]
+    if len(ordered) % 2 == 0:
+        for shift in (0, 1):
+            rolled, ways = np.roll(ordered, -shift), np.roll(forward, -shift)
+            if np.all(ways[0::2] != ways[1::2]):
+                return np.stack([rolled[0::2], rolled[1::2]], axis=1)
+    return np.zeros((0, 2), np.int64)
 
 
 def density_grid(density, lower, upper, settings: ExtractionSettings, exclude=None):
@@ -325,7 +439,7 @@ def mesh_from_grid(values, axes, settings: ExtractionSettings, log_level=logging
     """The decimated surface at `threshold` of a `density_grid`."""
     vertices, faces = marching_cubes(values, axes, settings.threshold)
     mesh = keep_large_components(vertices, faces, settings.keep_fraction, log_level)
-    return decimate(mesh, settings.faces)
+    return decimate(mesh, settings.faces, settings.keep_fraction)
 
 
 def mesh_from_density(density, lower, upper, settings: ExtractionSettings, exclude=None):
@@ -483,12 +597,27 @@ def cut_at_support(density, box, settings: ExtractionSettings):
     return lower, upper, support
 
 
-def extract_object(density, box, settings: ExtractionSettings) -> Extraction:
+def extract_object(density, box, settings: ExtractionSettings, views=()) -> Extraction:
     """Object and environment meshes for the object in `box` (2, 3), e.g. from
-    `object_box_from_points` or a user's --box."""
+    `object_box_from_points` or a user's --box; with masked `views`, the object's density is
+    carved to their visual hull first (`carve`, unless `carve_margin` is None)."""
     lower, upper, support = cut_at_support(density, box, settings)
     _, voxel = grid_axes(lower, upper, settings.resolution)
-    obj = mesh_from_density(density, lower, upper, settings)
+    values, axes = density_grid(density, lower, upper, settings)
+    if views and settings.carve_margin is not None:
+        inside = carve(axes, views, settings.carve_margin)
+        values = values * inside
+        if settings.fill_hidden:
+            solid = hidden(axes, views, 2 * voxel) & (inside >= 0.5)
+            values = np.where(solid, np.maximum(values, 2 * settings.threshold), values)
+    obj = mesh_from_grid(values, axes, settings)
+    for voxels in range(1, settings.max_close_voxels + 1):
+        if obj.is_watertight:
+            break
+        obj = mesh_from_grid(closed(values, settings.threshold, voxels), axes, settings, logging.DEBUG)
+        log.info(
+            "gaps of up to %d voxels in the object's solid closed, so that its mesh is closed", 2 * voxels
+        )
     passive_lower, passive_upper = passive_box(lower, upper, support, settings)
     exclude = np.stack([lower - [0, 0, 0.5 * voxel], upper + voxel])
     try:
@@ -681,6 +810,7 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
     points = points[_inside_every_mask(points, views, settings)]
     if len(points) == 0:
         return views
+    reach = settings.hull_mask_reach * float(np.max(upper - lower))
     for view in views:
         if view.image is None or not view.prompts:
             continue
@@ -689,6 +819,7 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
         margin = max(2, int(round(settings.hull_mask_margin * np.sqrt(splat.sum()))))
         ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
         labels[cv2.dilate(splat.astype(np.uint8), ring).astype(bool)] = cv2.GC_PR_BGD
+        labels[_far_from(points, view, labels == cv2.GC_PR_BGD, reach)] = cv2.GC_BGD
         labels[splat] = cv2.GC_PR_FGD
         labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = (
             cv2.GC_FGD
@@ -697,6 +828,81 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
             continue
         view.mask = fill_holes(grabcut(view.image, labels, 5), HOLE_FRACTION)
     return views
+
+
+def _far_from(points, view, candidates, reach, samples=24):
+    """(H, W) bool: the `candidates` pixels whose ray passes further than `reach` from every one
+    of `points` (P, 3) on its way to the surface the view's depth holds (sampled at `samples`
+    z-depths over the points' own z-range in the view, grown by `reach`). A ray through the
+    object's faint lower part (where the depth lands on the support behind it) passes near its
+    voxels; one onto the support beside the object does not."""
+    from scipy.spatial import cKDTree
+
+    far = np.zeros(candidates.shape, bool)
+    rows, columns = np.nonzero(candidates & (view.depth > 0))
+    if len(rows) == 0:
+        return far
+    depths = pinhole.project(view.K, view.c2w, points)[1]
+    near_z, far_z = depths.min() - reach, depths.max() + reach
+    surface = view.depth[rows, columns]
+    steps = np.linspace(0.0, 1.0, samples)
+    z = near_z + (np.minimum(surface, far_z) - near_z)[:, None] * steps  # (R, samples)
+    z = np.maximum(z, 1e-6)
+    along = pinhole.unproject(
+        view.K, view.c2w, np.repeat(columns, samples), np.repeat(rows, samples), z.reshape(-1)
+    )
+    distance = cKDTree(points).query(along, distance_upper_bound=reach)[0].reshape(len(rows), samples)
+    far[rows, columns] = distance.min(axis=1) > reach
+    return far
+
+
+def carve(axes, views, margin) -> np.ndarray:
+    """(X, Y, Z) factors in [0, 1] on the grid of `axes`: 1 where a grid point projects inside
+    every view's mask (or within `margin` pixels of it), 0 where it projects further than
+    margin + 0.5 px outside one, a linear ramp between (so the surface of density × factor
+    keeps sub-pixel positions). Views a point projects outside of (or lies behind) do not
+    constrain it.
+
+    A visual hull: the NeRF's density around an object holds a halo and pieces of what touches
+    it (the tray's rim, a shadow), which marching cubes would add to the mesh; the masks say
+    where the object is not. Space that every view sees only through the object (its unseen
+    bottom, its concavities) is not carved."""
+    import cv2
+    from scipy import ndimage
+
+    shape = tuple(len(a) for a in axes)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    factor = np.ones(len(points), np.float32)
+    for view in views:
+        mask = np.asarray(view.mask, bool)
+        outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
+        inside = cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5)
+        beyond = np.where(mask, 0.5 - inside, outside - 0.5)  # px past the mask's edge
+        image, depth = pinhole.project(view.K, view.c2w, points)
+        u, v = (image - pinhole.PIXEL_CENTRE).T
+        height, width = mask.shape
+        seen = (depth > 1e-9) & (u >= -0.5) & (u <= width - 0.5) & (v >= -0.5) & (v <= height - 0.5)
+        distance = ndimage.map_coordinates(beyond, [v[seen], u[seen]], order=1, mode="nearest")
+        factor[seen] = np.minimum(factor[seen], np.clip(margin + 0.5 - distance, 0.0, 1.0))
+    return factor.reshape(shape)
+
+
+def hidden(axes, views, tolerance) -> np.ndarray:
+    """(X, Y, Z) bool on the grid of `axes`: points that lie more than `tolerance` behind the
+    surface (the view's z-depth at their pixel) in every view they project into, and into at
+    least one; a pixel without depth (0) sees through, so its points are not hidden."""
+    shape = tuple(len(a) for a in axes)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    behind = np.ones(len(points), bool)
+    seen_by = np.zeros(len(points), bool)
+    for view in views:
+        u, v, keep = _pixels(points, view, view.depth.shape)
+        depth = pinhole.project(view.K, view.c2w, points)[1]
+        surface = np.zeros(len(points))
+        surface[keep] = view.depth[v[keep], u[keep]]
+        behind[keep] &= (surface[keep] > 0) & (depth[keep] > surface[keep] + tolerance)
+        seen_by |= keep
+    return (behind & seen_by).reshape(shape)
 
 
 def _inside_every_mask(points, views, settings: ExtractionSettings):

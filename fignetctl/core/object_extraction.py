@@ -59,7 +59,7 @@ def extract(
         views = view_masks(list(views), segmentation)
         box = consistent_box(density, views, settings)
     settings, threshold = _threshold(density, box, views, settings)
-    extraction = extract_object(density, box, settings)
+    extraction = extract_object(density, box, settings, views)
     agreement = {
         name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
     }
@@ -80,7 +80,8 @@ def extract(
 
 def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
     """Warning lines (also logged) for an object mesh that is not watertight and for a field
-    whose finest `voxel` is over `warn_voxel` of the mesh's smallest side."""
+    whose finest `voxel` is over `warn_voxel` of the mesh's smallest side; FignetError when the
+    voxel is over `max_voxel` of it."""
     warnings = []
     if not mesh.is_watertight:
         warnings.append(
@@ -89,6 +90,13 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
             "(decimation can open it) or another `threshold`"
         )
     smallest = float(np.min(mesh.extents)) if len(mesh.vertices) else 0.0
+    if voxel is not None and smallest > 0 and voxel > settings.max_voxel * smallest:
+        raise FignetError(
+            f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
+            f"object mesh's smallest side ({smallest:.3g}): the object is under {1 / settings.max_voxel:.0f} "
+            "voxels thick and its size cannot be measured; fit a finer NeRF around the objects (fit-nerf's "
+            f"`region=prompts`), or accept a coarse mesh with `max_voxel` above {voxel / smallest:.2f}"
+        )
     if voxel is not None and smallest > 0 and voxel > settings.warn_voxel * smallest:
         warnings.append(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "

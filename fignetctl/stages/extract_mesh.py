@@ -43,6 +43,16 @@ class Settings:
     passive_above: float | None = setting(
         None, "Environment box: above the support.  [default: V_o's height]", low=0, low_open=True
     )
+    carve: bool = setting(
+        True, "Cut the object's density to the masks' visual hull, and fill what no view saw inside it."
+    )
+    max_voxel: float = setting(
+        0.35,
+        "Refuse the mesh when the NeRF's voxel is over this fraction of its smallest side (too coarse "
+        "to measure).",
+        low=0,
+        low_open=True,
+    )
     device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
 
 
@@ -85,6 +95,8 @@ def run(
         passive_margin=settings.passive_margin,
         passive_below=settings.passive_below,
         passive_above=settings.passive_above,
+        carve_margin=ExtractionSettings.carve_margin if settings.carve else None,
+        max_voxel=settings.max_voxel,
     )
     inputs = ExtractionInputs(
         nerf=nerf,

@@ -62,7 +62,10 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     choice = summary["threshold_choice"]
     assert choice["source"] == "masks" and 6 <= len(choice["scores"]) <= 10 and choice["seconds"] > 0
-    assert choice["scores"][f"{summary['threshold']:g}"] == max(v for v in choice["scores"].values() if v)
+    # the best score, or one within the tie tolerance (0.01) nearer the default level
+    assert (
+        choice["scores"][f"{summary['threshold']:g}"] >= max(v for v in choice["scores"].values() if v) - 0.01
+    )
     assert f"threshold {summary['threshold']:g} (auto: best median outline IoU" in result.output
     assert volume.settings["threshold"] == summary["threshold"]
     assert volume.settings["threshold_choice"] == choice and volume.settings["auto_threshold"]

@@ -482,10 +482,15 @@ def test_extraction_warns_of_an_open_mesh_and_of_a_coarse_field(caplog):
     assert _mesh_warnings(closed, settings, voxel=0.004) == []  # 8 % of the 5 cm side
     opened = trimesh.Trimesh(closed.vertices, closed.faces[:-2])
     with caplog.at_level("WARNING"):
-        warnings = _mesh_warnings(opened, settings, voxel=0.023)
+        warnings = _mesh_warnings(opened, settings, voxel=0.015)
     assert len(warnings) == 2 and "not watertight" in warnings[0] and "closed mesh" in warnings[0]
-    assert "46 % of the object's smallest side" in warnings[1] and "`region=prompts`" in warnings[1]
+    assert "30 % of the object's smallest side" in warnings[1] and "`region=prompts`" in warnings[1]
     assert "not watertight" in caplog.text
+    with pytest.raises(FignetError, match="46 % of the object mesh's smallest side .* under 3 voxels thick"):
+        _mesh_warnings(closed, settings, voxel=0.023)
+    assert _mesh_warnings(
+        closed, dataclasses.replace(settings, max_voxel=0.5), voxel=0.023
+    )  # accepted, warned
 
 
 def test_plane_fits_allow_for_a_coarse_fields_depth_noise(tiny_capture):
@@ -532,3 +537,194 @@ def test_views_that_do_not_overlap_are_refused_with_the_masks_sizes():
         match=r"mask in c .*masks of 15 px, 271 px, 14 px in a, b, c.*`region=prompts`; or give `masks`",
     ):
         mx.check_views_agree([near, near + 0.01, near + 0.5], ["a", "b", "c"], [15, 271, 14])
+
+
+def test_carving_cuts_the_field_to_the_masks_visual_hull():
+    """A ball whose field holds a lump on one side that the masks leave out (a piece of what
+    touches it): carved, the mesh is the ball; uncarved, the lump is in it. The carving factor
+    is 1 for points whose pixels are inside every mask and 0 where one view's pixel is over
+    margin + 0.5 px outside, as found by projecting the points one by one."""
+    from fignetctl.core import pinhole
+
+    ball, lump = sphere([0, 0, 0.2], 0.2), sphere([0.24, 0, 0.2], 0.07)
+
+    def density(points):
+        p = np.asarray(points)
+        floor = np.where((p[:, 2] <= 0.0) & (p[:, 2] >= -0.05), 3000.0, 0.0)
+        return np.maximum(np.maximum(ball(p), lump(p)), floor)
+
+    import trimesh
+
+    truth = trimesh.creation.icosphere(subdivisions=4, radius=0.2)
+    truth.apply_translation([0, 0, 0.2])
+    views = []
+    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.5], [-0.7, 0.6, 0.8]):
+        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
+        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, [0, 0, 0.2]), np.ones((120, 160)))
+        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+        views.append(view)
+    box = np.array([[-0.3, -0.3, -0.02], [0.4, 0.3, 0.45]])
+    settings = mx.ExtractionSettings(resolution=48, threshold=1000.0, faces=0, smoothing=0)
+    carved = mx.extract_object(density, box, settings, views).object_mesh
+    plain = mx.extract_object(
+        density, box, dataclasses.replace(settings, carve_margin=None), views
+    ).object_mesh
+    assert plain.bounds[1][0] > 0.28  # the lump reaches x = 0.31
+    voxel = 0.7 / 47
+    assert carved.bounds[1][0] < 0.2 + 2 * voxel
+    np.testing.assert_allclose(carved.extents[:2], 0.4, atol=2 * voxel)
+
+    axes, _ = mx.grid_axes(box[0], box[1], 24)
+    factor = mx.carve(axes, views, 1.0).reshape(-1)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    inside, far_outside = np.ones(len(points), bool), np.zeros(len(points), bool)
+    for view in views:
+        pixel = pinhole.pixel_of(pinhole.project(view.K, view.c2w, points)[0])
+        in_image = (pixel[:, 0] >= 0) & (pixel[:, 0] < 160) & (pixel[:, 1] >= 0) & (pixel[:, 1] < 120)
+        hit = np.zeros(len(points), bool)
+        hit[in_image] = view.mask[pixel[in_image, 1], pixel[in_image, 0]]
+        inside &= hit | ~in_image
+        grown = cv2_dilate(view.mask, 3)  # more than 1.5 px outside the mask: cut
+        near = np.zeros(len(points), bool)
+        near[in_image] = grown[pixel[in_image, 1], pixel[in_image, 0]]
+        far_outside |= in_image & ~near
+    assert far_outside.any() and inside.any()
+    assert np.all(factor[far_outside] == 0.0)
+    assert np.all(factor[inside] > 0.5)
+
+
+def cv2_dilate(mask, pixels):
+    import cv2
+
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * pixels + 1,) * 2)
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+def test_a_pinched_surface_is_taken_apart_into_closed_pieces():
+    """Two unit cubes sharing one edge (four faces on it) and a tetrahedron touching one at a
+    corner, plus a face glued to its reverse: unpinched, every edge has two faces, the pieces
+    keep their volumes, and the vertices at the pinches are doubled."""
+    import trimesh
+
+    a = trimesh.creation.box([1, 1, 1])
+    b = trimesh.creation.box([1, 1, 1])
+    b.apply_translation([1, 1, 0])  # shares the edge x = y = 0.5 with a
+    tip = trimesh.Trimesh([[0.5, -0.5, 0.5], [1.5, -0.5, 0.5], [0.5, -1.5, 0.5], [0.5, -0.5, 1.5]],
+                          [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])  # fmt: skip
+    merged = trimesh.util.concatenate([a, b, tip])
+    merged.merge_vertices()
+    faces = np.concatenate([merged.faces, [[0, 1, 2], [0, 2, 1]]])  # a face and its reverse
+    assert not trimesh.Trimesh(merged.vertices, faces, process=False).is_watertight
+    vertices, faces = mx.unpinched(merged.vertices, faces)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert len(faces) == 12 + 12 + 4
+    assert len(vertices) == len(merged.vertices) + 2 + 1  # the shared edge's two ends, the corner
+    volumes = sorted(abs(mx.signed_volume(p.vertices, p.faces)) for p in mesh.split(only_watertight=False))
+    np.testing.assert_allclose(volumes, [1 / 6, 1.0, 1.0])
+
+
+def _sphere_depth(view, centre, radius, floor=0.0):
+    """(H, W) z-depth of a sphere on a floor plane z = `floor`, ray cast per pixel centre."""
+    from fignetctl.core import pinhole
+
+    height, width = view.mask.shape
+    v, u = np.mgrid[0:height, 0:width]
+    directions = pinhole.camera_directions(view.K, u, v) @ view.c2w[:3, :3].T  # world, z-depth 1
+    origin = view.c2w[:3, 3]
+    offset = origin - centre
+    a = np.einsum("hwi,hwi->hw", directions, directions)
+    b = 2 * directions @ offset
+    c = offset @ offset - radius**2
+    disc = b**2 - 4 * a * c
+    t_sphere = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0))) / (2 * a), np.inf)
+    t_floor = np.where(
+        directions[..., 2] < 0, (floor - origin[2]) / np.minimum(directions[..., 2], -1e-9), np.inf
+    )
+    t = np.minimum(t_sphere, t_floor)
+    return np.where(np.isfinite(t), t, 0.0)  # the directions have z-depth 1: t is the z-depth
+
+
+def test_what_no_view_saw_inside_is_filled():
+    """A field that holds only a ball's seen shell (its upper half, as a NeRF fitted from above
+    holds it, hollow inside): meshed as it is, a bowl of a fraction of the ball's volume; with
+    the hidden part of the visual hull filled (behind the surface in every view), as solid as
+    the ball, and no wider."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+
+    centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
+
+    def shell(points):
+        p = np.asarray(points)
+        distance = np.linalg.norm(p - centre, axis=1)
+        band = (distance < radius) & (distance > radius - 0.04) & (p[:, 2] > centre[2] - 0.05)
+        floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
+        return np.where(band | floor, 3000.0, 0.0)
+
+    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    truth.apply_translation(centre)
+    views = []
+    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
+        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
+        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
+        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+        view.depth = _sphere_depth(view, centre, radius)
+        views.append(view)
+    box = np.array([[-0.3, -0.3, -0.02], [0.3, 0.3, 0.45]])
+    settings = mx.ExtractionSettings(resolution=48, threshold=1000.0, faces=0)
+    filled = mx.extract_object(shell, box, settings, views).object_mesh
+    bowl = mx.extract_object(shell, box, dataclasses.replace(settings, fill_hidden=False), views).object_mesh
+    assert bowl.volume < 0.6 * truth.volume
+    assert 0.9 * truth.volume < filled.volume < 1.3 * truth.volume
+    np.testing.assert_allclose(filled.extents[:2], 2 * radius, rtol=0.06)
+    # points inside the ball are hidden, points between the cameras and the ball are not
+    axes = [np.array([0.0, 0.3]), np.array([0.0]), np.array([0.2])]
+    assert mx.hidden(axes, views, 0.01).reshape(-1).tolist() == [True, False]
+
+
+def test_ring_pixels_are_background_where_their_rays_pass_far_from_the_object():
+    """`_far_from` against the distance of each pixel's ray (camera to its depth) to the
+    object's points, by brute force over a dense sampling of the ray."""
+    from fignetctl.core import pinhole
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(0, 0.03, (300, 3)) + [0, 0, 0.1]
+    K = np.array([[100.0, 0, 40], [0, 100.0, 30], [0, 0, 1]])
+    view = mx.View("v", K, pinhole.look_at([0.6, -0.4, 0.5], [0, 0, 0.1]), np.zeros((60, 80)))
+    view.mask = np.zeros((60, 80), bool)
+    view.depth = _sphere_depth(view, np.array([0, 0, -10.0]), 0.01)  # only the floor z = 0 behind
+    candidates = np.ones((60, 80), bool)
+    reach = 0.05
+    far = mx._far_from(points, view, candidates, reach, samples=200)
+    rows, columns = np.mgrid[0:60:6, 0:80:6].reshape(2, -1)
+    for r, c in zip(rows, columns):
+        depth = np.linspace(1e-3, view.depth[r, c], 800)
+        ray = pinhole.unproject(view.K, view.c2w, np.full(800, c), np.full(800, r), depth)
+        nearest = np.min(np.linalg.norm(ray[:, None] - points[None], axis=2))
+        if abs(nearest - reach) > 0.005:  # away from the boundary, where sampling decides
+            assert far[r, c] == (nearest > reach), (r, c, nearest)
+    assert far.any() and not far.all()
+
+
+def test_closing_fills_narrow_tunnels_and_bubbles_but_not_a_wide_hole():
+    """`closed` on a solid block with a 2-voxel tunnel, a bubble inside and a 10-voxel hole:
+    the tunnel and the bubble are filled (raised to 2 × threshold), the hole stays, and
+    nothing outside the block is touched."""
+    from skimage.measure import euler_number
+
+    values = np.zeros((40, 30, 30), np.float32)
+    values[5:35, 5:25, 5:25] = 100.0
+    values[10:12, 10:12, :] = 0.0  # a tunnel through the block, 2 voxels wide
+    values[20:22, 14:16, 14:16] = 0.0  # a bubble inside
+    values[24:34, 10:20, :] = 0.0  # a wide hole through it
+    result = mx.closed(values, 50.0, 1)
+    solid = result > 50.0
+    assert solid[10:12, 10:12, 6:24].all() and solid[20:22, 14:16, 14:16].all()  # (dimples at the mouths)
+    assert not solid[25:33, 11:19, :].any()  # the wide hole is open
+    np.testing.assert_array_equal(result[values > 50.0], values[values > 50.0])
+    assert not solid[:5].any() and not solid[:, :, :5].any()
+    assert euler_number(np.pad(values > 50.0, 1), connectivity=1) == 1 - 2 + 1  # two tunnels, a bubble
+    assert euler_number(np.pad(solid, 1), connectivity=1) == 1 - 1  # one tunnel: the wide hole
+    assert set(np.unique(result[solid & (values <= 50.0)])) == {100.0}

@@ -45,6 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import foreign_capture
+from mesh_vs_truth import compare, mask_ious
 
 FIGNETCTL = str(Path(sys.executable).parent / "fignetctl")
 DEFAULT_OUT = ROOT / "benchmarks" / "results" / "foreign-capture.json"
@@ -166,6 +167,15 @@ def has_region_option() -> bool:
     return "--region" in done.stdout
 
 
+def fitted_on(summary_path, cameras) -> bool:
+    """Whether the NeRF of fit-nerf's --json `summary_path` was fitted on the file `cameras`
+    (capture-poses run again gives another frame, in which an old NeRF is meaningless)."""
+    from fignetctl.core.provenance import file_sha256
+
+    recorded = json.loads(Path(summary_path).read_text()).get("inputs_sha256", {}).get("cameras")
+    return recorded == file_sha256(cameras)
+
+
 def fit(capture, cameras, work, region, args, log) -> dict:
     output = work / f"nerf-{region or 'default'}.pt"
     summary_path = work / f"fit-nerf-{region or 'default'}.json"
@@ -176,7 +186,7 @@ def fit(capture, cameras, work, region, args, log) -> dict:
             extra += ["--prompts", capture / "prompts.json"]
     if args.steps:
         extra += ["--steps", args.steps]
-    if args.reuse and output.exists() and summary_path.exists():
+    if args.reuse and output.exists() and summary_path.exists() and fitted_on(summary_path, cameras):
         log(f"reusing {output}")
         entry = {"command": "(reused)", "rc": 0}
     else:
@@ -203,21 +213,7 @@ def fit(capture, cameras, work, region, args, log) -> dict:
 # Meshes ---------------------------------------------------------------------------------------
 
 
-def chamfer(mesh, truth, samples=20000, seed=0) -> float:
-    """Symmetric mean closest-point distance between surface samples of both meshes."""
-    from scipy.spatial import cKDTree
-
-    a = mesh.sample(samples, seed=seed)
-    b = truth.sample(samples, seed=seed)
-    return 0.5 * float(cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
-
-
-def extract(capture, cameras_path, nerf, work, obj, to_estimated, log) -> dict:
-    import cv2
-    import trimesh
-
-    from fignetctl.core.cameras import read_cameras
-
+def extract(capture, cameras_path, nerf, work, obj, log) -> dict:
     name = obj["name"]
     folder = work / f"{Path(nerf).stem}-{name}"
     summary_path = work / f"{Path(nerf).stem}-{name}.json"
@@ -228,55 +224,21 @@ def extract(capture, cameras_path, nerf, work, obj, to_estimated, log) -> dict:
         log,
     )  # fmt: skip
     entry = {"object": name, "command": result["command"], "rc": result["rc"], "seconds": result["seconds"]}
-    truth = trimesh.load(capture / "ground_truth" / "objects" / f"{name}.obj", force="mesh", process=False)
-    true_size = float(np.ptp(truth.vertices, axis=0).max())
-    entry["true_largest_side_m"] = round(true_size, 4)
-    # the prompted views' masks (written on success and kept on a refusal when there are any)
-    truth_masks = np.load(capture / "ground_truth" / "masks.npz")["masks"]
-    names = [str(n) for n in read_cameras(capture / "ground_truth" / "cameras.npz").image_names]
-    ious = {}
-    for point in obj["points"]:
-        path = folder / "masks" / (Path(point["image"]).stem + ".png")
-        if path.exists():
-            mask = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE) > 0
-            true = truth_masks[names.index(point["image"])] == obj["id"]
-            ious[point["image"]] = round(float((mask & true).sum() / max((mask | true).sum(), 1)), 3)
-    entry["mask_iou"] = ious
     if result["rc"] != 0:
+        # the prompted views' masks, kept on a refusal when there are any
+        entry["mask_iou"] = mask_ious(capture, folder, obj)
         entry["refusal"] = result["last_line"]
         return entry
     entry["message"] = [line for line in result["stderr"].splitlines() if line.strip()][-3:]
-    summary = json.loads(summary_path.read_text())
-    mesh = trimesh.load(folder / "object.obj", force="mesh", process=False)
-    mesh.apply_translation(np.asarray(summary["origin"], float))
-    truth.apply_transform(to_estimated)  # into capture-poses' frame
-    true_extent = np.ptp(truth.vertices, axis=0)
-    extent = np.ptp(mesh.vertices, axis=0)
-    ratio = extent / true_extent
-    entry["size"] = extent.round(4).tolist()  # capture-poses' units (metres from --camera-height)
-    entry["true_size"] = true_extent.round(4).tolist()  # the true mesh in the same frame and units
-    entry["size_ratio_xyz"] = ratio.round(3).tolist()
-    entry["chamfer_pct_of_size"] = round(100 * chamfer(mesh, truth) / float(true_extent.max()), 2)
-    entry["watertight"] = bool(mesh.is_watertight)
-    entry["meets_bar"] = bool(np.all(np.abs(ratio - 1) <= 0.10) and entry["chamfer_pct_of_size"] <= 5.0)
+    entry.update(compare(capture, cameras_path, folder, name))
     entry["silent_failure"] = not entry["meets_bar"]  # exit 0 but outside the bar
-    for key in ("mask_iou", "threshold", "threshold_choice", "warnings"):
-        if key in summary and key != "mask_iou":
+    summary = json.loads(summary_path.read_text())
+    for key in ("threshold", "threshold_choice", "warnings"):
+        if key in summary:
             entry[f"extract_{key}"] = summary[key]
     if "mask_iou" in summary:
         entry["extract_outline_iou"] = summary["mask_iou"]
     return entry
-
-
-def similarity_matrix(estimated_to_true) -> np.ndarray:
-    """(4, 4) true frame -> estimated frame, the inverse of the fitted similarity."""
-    s = estimated_to_true["scale"]
-    r = np.asarray(estimated_to_true["rotation"])
-    t = np.asarray(estimated_to_true["translation"])
-    matrix = np.eye(4)
-    matrix[:3, :3] = r.T / s
-    matrix[:3, 3] = -r.T @ t / s
-    return matrix
 
 
 # Report ---------------------------------------------------------------------------------------
@@ -416,7 +378,6 @@ def main():
         if args.regions is not None
         else (["scene", "prompts"] if has_region_option() else [None])
     )
-    to_estimated = similarity_matrix(chosen["estimated_to_true"])
     prompts = json.loads((capture / "prompts.json").read_text())["objects"]
     for region in regions:
         label = f"region {region}" if region else "default"
@@ -425,9 +386,7 @@ def main():
         if results["nerf"][label].get("rc") != 0:
             continue
         nerf = results["nerf"][label]["nerf"]
-        results["meshes"][label] = [
-            extract(capture, cameras, nerf, work, obj, to_estimated, log) for obj in prompts
-        ]
+        results["meshes"][label] = [extract(capture, cameras, nerf, work, obj, log) for obj in prompts]
         save()
     report = table(results)
     results["table"] = report.splitlines()

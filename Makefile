@@ -33,8 +33,9 @@ dataset-demo: setup
 	$(BIN)/fignetctl show $(OUT)/movi-b.h5 --video $(OUT)/movi-b.mp4 --rerun $(OUT)/movi-b.rrd --overwrite
 	@echo "done: $(OUT)/movi-b.h5 $(OUT)/movi-b.mp4 $(OUT)/movi-b.rrd" >&2
 
+# One pytest worker per core (JOBS): the suite is mostly single-threaded.
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS)
 
 bench: setup
 	$(BIN)/python benchmarks/bench_geometry.py

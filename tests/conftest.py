@@ -1,9 +1,18 @@
 """Tiny synthetic data shared by the tests, made in the test (no downloads)."""
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `pytest -n 2` (make test) runs one worker per core: each worker's torch, and the commands
+    # its tests start, use one thread, or the workers' thread pools fight over the cores.
+    os.environ["OMP_NUM_THREADS"] = "1"
+    import torch
+
+    torch.set_num_threads(1)
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 INDEPENDENT_FIXTURE = SHARED / "fixtures" / "independent-movi-b-v1.h5"

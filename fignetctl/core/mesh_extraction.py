@@ -599,8 +599,10 @@ def cut_at_support(density, box, settings: ExtractionSettings):
 
 def extract_object(density, box, settings: ExtractionSettings, views=()) -> Extraction:
     """Object and environment meshes for the object in `box` (2, 3), e.g. from
-    `object_box_from_points` or a user's --box; with masked `views`, the object's density is
-    carved to their visual hull first (`carve`, unless `carve_margin` is None)."""
+    `object_box_from_points` or a user's --box. With masked `views`, the object's density is
+    carved to their visual hull first (`carve`, unless `carve_margin` is None) and filled where
+    no view saw inside it (`hidden`, with `fill_hidden`); when the decimated mesh is not
+    closed, the solid's gaps are closed (`closed`, up to `max_close_voxels`)."""
     lower, upper, support = cut_at_support(density, box, settings)
     _, voxel = grid_axes(lower, upper, settings.resolution)
     values, axes = density_grid(density, lower, upper, settings)
@@ -611,12 +613,15 @@ def extract_object(density, box, settings: ExtractionSettings, views=()) -> Extr
             solid = hidden(axes, views, 2 * voxel) & (inside >= 0.5)
             values = np.where(solid, np.maximum(values, 2 * settings.threshold), values)
     obj = mesh_from_grid(values, axes, settings)
-    for voxels in range(1, settings.max_close_voxels + 1):
-        if obj.is_watertight:
-            break
+    voxels = 0
+    while not obj.is_watertight and voxels < settings.max_close_voxels:
+        voxels += 1
         obj = mesh_from_grid(closed(values, settings.threshold, voxels), axes, settings, logging.DEBUG)
+    if voxels:
         log.info(
-            "gaps of up to %d voxels in the object's solid closed, so that its mesh is closed", 2 * voxels
+            "gaps of up to %d voxels in the object's solid closed: its mesh is %s",
+            2 * voxels,
+            "closed" if obj.is_watertight else "still not closed",
         )
     passive_lower, passive_upper = passive_box(lower, upper, support, settings)
     exclude = np.stack([lower - [0, 0, 0.5 * voxel], upper + voxel])

@@ -27,6 +27,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from mesh_vs_truth import truth_to
 
 FACES = (100, 300, 1000, 3000, 0)
 
@@ -38,7 +41,7 @@ def mesh_errors(mesh, truth, samples=20000, seed=0):
     underneath, the mug has a cavity): its inside is then not defined."""
     from scipy.spatial import cKDTree
 
-    a = mesh.sample(samples, seed=seed) if hasattr(mesh.sample, "__call__") else mesh.sample(samples)
+    a = mesh.sample(samples, seed=seed)
     b = truth.sample(samples, seed=seed)
     chamfer = 0.5 * (cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
     if not truth.is_watertight:
@@ -51,20 +54,6 @@ def mesh_errors(mesh, truth, samples=20000, seed=0):
     inside_a, inside_b = solid_a.is_filled(points), solid_b.is_filled(points)
     iou = (inside_a & inside_b).sum() / max((inside_a | inside_b).sum(), 1)
     return float(chamfer / truth.extents.max()), float(iou)
-
-
-def ground_truth_to(cameras, truth_cameras):
-    """(4, 4) similarity from the GT frame to the frame of `cameras` (identity when they are the GT's)."""
-    from fignetctl.core.world_alignment import umeyama
-
-    names = [str(n) for n in cameras.image_names if n in set(truth_cameras.image_names)]
-    source = np.stack([truth_cameras.c2w[truth_cameras.index_of(n)][:3, 3] for n in names])
-    target = np.stack([cameras.c2w[cameras.index_of(n)][:3, 3] for n in names])
-    scale, rotation, translation = umeyama(source, target)
-    matrix = np.eye(4)
-    matrix[:3, :3] = scale * rotation
-    matrix[:3, 3] = translation
-    return matrix
 
 
 def main():
@@ -97,7 +86,7 @@ def main():
     capture = args.capture
     truth_cameras = read_cameras(capture / "ground_truth" / "cameras.npz")
     cameras = read_cameras(args.cameras) if args.cameras else truth_cameras
-    to_nerf_frame = ground_truth_to(cameras, truth_cameras)
+    to_nerf_frame = truth_to(cameras, truth_cameras)
     truth_masks = np.load(capture / "ground_truth" / "masks.npz")["masks"]
     nerf_path = args.nerf
     if args.carve:

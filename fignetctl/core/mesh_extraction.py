@@ -196,10 +196,15 @@ def grid_axes(lower, upper, resolution):
     return [lower[i] + voxel * np.arange(counts[i]) for i in range(3)], voxel
 
 
+def grid_points(axes) -> np.ndarray:
+    """(X·Y·Z, 3) the vertices of the grid of `axes` (3 arrays), x slowest."""
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
 def sample_density(density, axes, chunk=262144):
     """σ on the grid of `axes` (3 arrays) -> (X, Y, Z) float32, by calling density in chunks."""
     shape = tuple(len(a) for a in axes)
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    points = grid_points(axes)
     values = np.concatenate(
         [
             np.asarray(density(points[i : i + chunk]), np.float32).reshape(-1)
@@ -740,7 +745,7 @@ def occupancy_grid(density, box, settings: ExtractionSettings):
     """(axes, voxel, points (N, 3), occupied (X, Y, Z) bool) of `box` at `hull_resolution`."""
     axes, voxel = grid_axes(box[0], box[1], settings.hull_resolution)
     occupied = sample_density(density, axes) > settings.threshold
-    return axes, voxel, np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3), occupied
+    return axes, voxel, grid_points(axes), occupied
 
 
 def consistent_box(density, views, settings: ExtractionSettings):
@@ -876,7 +881,7 @@ def carve(axes, views, margin) -> np.ndarray:
     from scipy import ndimage
 
     shape = tuple(len(a) for a in axes)
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    points = grid_points(axes)
     factor = np.ones(len(points), np.float32)
     for view in views:
         mask = np.asarray(view.mask, bool)
@@ -897,12 +902,11 @@ def hidden(axes, views, tolerance) -> np.ndarray:
     surface (the view's z-depth at their pixel) in every view they project into, and into at
     least one; a pixel without depth (0) sees through, so its points are not hidden."""
     shape = tuple(len(a) for a in axes)
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    points = grid_points(axes)
     behind = np.ones(len(points), bool)
     seen_by = np.zeros(len(points), bool)
     for view in views:
-        u, v, keep = _pixels(points, view, view.depth.shape)
-        depth = pinhole.project(view.K, view.c2w, points)[1]
+        u, v, keep, depth = _pixels(points, view, view.depth.shape)
         surface = np.zeros(len(points))
         surface[keep] = view.depth[v[keep], u[keep]]
         behind[keep] &= (surface[keep] > 0) & (depth[keep] > surface[keep] + tolerance)
@@ -927,7 +931,7 @@ def _splat(points, view, shape):
 
     from fignetctl.core.segmentation import fill_holes
 
-    u, v, keep = _pixels(points, view, shape)
+    u, v, keep, _ = _pixels(points, view, shape)
     splat = np.zeros(shape, np.uint8)
     splat[v[keep], u[keep]] = 1
     return fill_holes(cv2.morphologyEx(splat, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8)).astype(bool))
@@ -935,18 +939,18 @@ def _splat(points, view, shape):
 
 def _projects_into(points, mask, view):
     """(P,) bool: world points in front of the view's camera whose pixel is set in `mask`."""
-    u, v, keep = _pixels(points, view, mask.shape)
+    u, v, keep, _ = _pixels(points, view, mask.shape)
     result = np.zeros(len(points), bool)
     result[keep] = mask[v[keep], u[keep]]
     return result
 
 
 def _pixels(points, view, shape):
-    """The pixel (u, v) of each world point in the view, and whether it is in front of the
-    camera and inside an image of `shape` (H, W)."""
+    """The pixel (u, v) of each world point in the view, whether it is in front of the camera
+    and inside an image of `shape` (H, W), and its z-depth."""
     image, depth = pinhole.project(view.K, view.c2w, points)
     u, v = pinhole.pixel_of(image).T
-    return u, v, (depth > 1e-9) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    return u, v, (depth > 1e-9) & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0]), depth
 
 
 def silhouette(vertices, faces, view, shape) -> np.ndarray:

@@ -65,3 +65,16 @@ def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
 @pytest.fixture
 def box_drop():
     return box_drop_file()
+
+
+@pytest.fixture(scope="session")
+def small_capture(tmp_path_factory):
+    """render-views' tiny preset at 160x120, seed 0, no video: a capture folder with ground truth."""
+    from fignetctl.core.synthetic_capture import PRESETS, capture_settings
+    from fignetctl.stages.render_views import write_capture
+
+    folder = tmp_path_factory.mktemp("capture") / "capture"
+    write_capture(
+        folder, capture_settings(**{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
+    )
+    return folder

@@ -23,18 +23,6 @@ def mesh_vs_truth():
     return module
 
 
-@pytest.fixture(scope="module")
-def capture(tmp_path_factory):
-    from fignetctl.core.synthetic_capture import PRESETS, capture_settings
-    from fignetctl.stages.render_views import write_capture
-
-    folder = tmp_path_factory.mktemp("capture") / "capture"
-    write_capture(
-        folder, capture_settings(**{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
-    )
-    return folder
-
-
 def extraction_folder(folder, capture, frame, stretch=1.0):
     """An extract-mesh folder for the first prompted object: the true mesh moved into `frame`
     ((4, 4) similarity), stretched along x about its centre, and the true masks."""
@@ -81,7 +69,8 @@ def moved_cameras(capture, path, frame):
     return path
 
 
-def test_the_true_mesh_scores_one_and_a_stretched_one_fails_the_bar(mesh_vs_truth, capture, tmp_path):
+def test_the_true_mesh_scores_one_and_a_stretched_one_fails_the_bar(mesh_vs_truth, small_capture, tmp_path):
+    capture = small_capture
     from scipy.spatial.transform import Rotation
 
     frame = np.eye(4)

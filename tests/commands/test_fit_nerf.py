@@ -116,7 +116,8 @@ def test_render_nerf_writes_colour_and_depth(fitted, tmp_path):
     assert np.load(out / "view_000_depth.npy").shape == (24, 32)
 
 
-def _one_line_error(result):
+def one_line_error(result):
+    """The one "Error:" line of a failed command, checked to be alone and without a traceback."""
     assert result.exit_code != 0 and isinstance(result.exception, SystemExit), result.exception
     errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert len(errors) == 1 and "Traceback" not in result.output, result.output
@@ -127,27 +128,27 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
     _, images, cameras, nerf, _ = fitted
     runner = CliRunner()
     out = str(tmp_path / "n.pt")
-    message = _one_line_error(runner.invoke(cli, ["fit-nerf", str(tmp_path), str(cameras), "-o", out, *FAST]))
+    message = one_line_error(runner.invoke(cli, ["fit-nerf", str(tmp_path), str(cameras), "-o", out, *FAST]))
     assert "not in" in message
     shrunk = read_cameras(cameras)
     shrunk.width, shrunk.height = 16, 12
     write_cameras(tmp_path / "small.npz", shrunk)
-    message = _one_line_error(
+    message = one_line_error(
         runner.invoke(cli, ["fit-nerf", str(images), str(tmp_path / "small.npz"), "-o", out, *FAST])
     )
     assert "do not match" in message
     (tmp_path / "images").mkdir()
     (tmp_path / "images" / "view_000.png").write_bytes(b"not a png")
-    message = _one_line_error(
+    message = one_line_error(
         runner.invoke(cli, ["fit-nerf", str(tmp_path / "images"), str(cameras), "-o", out, *FAST])
     )
     assert "view_00" in message
     (tmp_path / "bad.pt").write_bytes(b"garbage")
-    message = _one_line_error(
+    message = one_line_error(
         runner.invoke(cli, ["render-nerf", str(tmp_path / "bad.pt"), str(cameras), "-o", str(tmp_path / "r")])
     )
     assert "not a readable nerf.pt" in message
-    message = _one_line_error(
+    message = one_line_error(
         runner.invoke(
             cli, ["render-nerf", str(nerf), str(cameras), "-o", str(tmp_path / "r"), "--views", "99"]
         )

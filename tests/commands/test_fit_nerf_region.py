@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from fignetctl.cli import cli
 from fignetctl.core.nerf.io import load_nerf
+from tests.commands.test_fit_nerf import one_line_error
 from tests.core.test_nerf import write_synthetic_scene
 from tests.core.test_nerf_region import write_prompts
 
@@ -28,13 +29,6 @@ def fit(images, cameras, output, *extra):
     return CliRunner().invoke(
         cli, ["fit-nerf", str(images), str(cameras), "-o", str(output), *FAST, *map(str, extra)]
     )
-
-
-def _one_line_error(result):
-    assert result.exit_code != 0 and isinstance(result.exception, SystemExit), result.exception
-    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
-    assert len(errors) == 1 and "Traceback" not in result.output, result.output
-    return errors[0]
 
 
 def test_a_box_region_is_fitted_finely_and_reported(scene, tmp_path):
@@ -78,5 +72,5 @@ def test_bad_regions_are_one_line_errors(scene, tmp_path, extra, code, message):
     _, images, cameras, _ = scene
     result = fit(images, cameras, tmp_path / "n.pt", *extra)
     assert result.exit_code == code, result.output
-    assert message in _one_line_error(result)
+    assert message in one_line_error(result)
     assert not (tmp_path / "n.pt").exists()

@@ -115,32 +115,20 @@ def test_volume_round_trip_and_damage(tmp_path):
         )
 
 
-@pytest.fixture(scope="module")
-def tiny_capture(tmp_path_factory):
-    from fignetctl.core.synthetic_capture import PRESETS, capture_settings
-    from fignetctl.stages.render_views import write_capture
-
-    folder = tmp_path_factory.mktemp("capture") / "capture"
-    write_capture(
-        folder, capture_settings(**{**PRESETS["tiny"], "width": 160, "height": 120}, seed=0, video=False)
-    )
-    return folder
-
-
-def test_prompt_masks_match_ground_truth(tiny_capture):
+def test_prompt_masks_match_ground_truth(small_capture):
     import cv2
 
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.segmentation import iou, prompt_mask
 
-    cameras = read_cameras(tiny_capture / "ground_truth" / "cameras.npz")
-    depth = np.load(tiny_capture / "ground_truth" / "depth.npz")["depth"]
-    truth = np.load(tiny_capture / "ground_truth" / "masks.npz")["masks"]
+    cameras = read_cameras(small_capture / "ground_truth" / "cameras.npz")
+    depth = np.load(small_capture / "ground_truth" / "depth.npz")["depth"]
+    truth = np.load(small_capture / "ground_truth" / "masks.npz")["masks"]
     scores = []
-    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+    for obj in json.loads((small_capture / "prompts.json").read_text())["objects"]:
         for point in obj["points"]:
             index = cameras.index_of(point["image"])
-            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            image = cv2.imread(str(small_capture / "images" / point["image"]))[..., ::-1]
             mask = prompt_mask(image, depth[index], cameras.K[index], point["u"], point["v"])
             scores.append(iou(mask, truth[index] == obj["id"]))
     assert np.median(scores) >= 0.85 and min(scores) >= 0.5, scores
@@ -493,7 +481,7 @@ def test_extraction_warns_of_an_open_mesh_and_of_a_coarse_field(caplog):
     )  # accepted, warned
 
 
-def test_plane_fits_allow_for_a_coarse_fields_depth_noise(tiny_capture):
+def test_plane_fits_allow_for_a_coarse_fields_depth_noise(small_capture):
     """Given the depth's noise (a coarse NeRF's voxel), a mask cut to a sliver by thin planes of
     noise is made again with thicker planes; prompt masks on depth scattered by ~1.5 cm still
     match the true masks (and no good mask is made worse)."""
@@ -503,15 +491,15 @@ def test_plane_fits_allow_for_a_coarse_fields_depth_noise(tiny_capture):
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.segmentation import SegmentationSettings, iou, prompt_mask
 
-    cameras = read_cameras(tiny_capture / "ground_truth" / "cameras.npz")
-    depth = np.load(tiny_capture / "ground_truth" / "depth.npz")["depth"]
-    truth = np.load(tiny_capture / "ground_truth" / "masks.npz")["masks"]
+    cameras = read_cameras(small_capture / "ground_truth" / "cameras.npz")
+    depth = np.load(small_capture / "ground_truth" / "depth.npz")["depth"]
+    truth = np.load(small_capture / "ground_truth" / "masks.npz")["masks"]
     settings = SegmentationSettings(depth_noise=0.02)
     scores = []
-    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+    for obj in json.loads((small_capture / "prompts.json").read_text())["objects"]:
         for point in obj["points"]:
             index = cameras.index_of(point["image"])
-            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            image = cv2.imread(str(small_capture / "images" / point["image"]))[..., ::-1]
             noise = ndimage.gaussian_filter(
                 np.random.default_rng(index).standard_normal(depth[index].shape), 2
             )
@@ -519,10 +507,10 @@ def test_plane_fits_allow_for_a_coarse_fields_depth_noise(tiny_capture):
             mask = prompt_mask(image, noisy, cameras.K[index], point["u"], point["v"], settings)
             scores.append(iou(mask, truth[index] == obj["id"]))
     assert np.median(scores) >= 0.9 and min(scores) >= 0.6, scores
-    for obj in json.loads((tiny_capture / "prompts.json").read_text())["objects"]:
+    for obj in json.loads((small_capture / "prompts.json").read_text())["objects"]:
         for point in obj["points"]:
             index = cameras.index_of(point["image"])
-            image = cv2.imread(str(tiny_capture / "images" / point["image"]))[..., ::-1]
+            image = cv2.imread(str(small_capture / "images" / point["image"]))[..., ::-1]
             args = (image, depth[index], cameras.K[index], point["u"], point["v"])
             true = truth[index] == obj["id"]
             # on exact depth the retry only ever takes a mask that fits the object as well or better

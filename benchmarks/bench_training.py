@@ -1,8 +1,9 @@
 """Training throughput: samples (scenes) per second of `fignetctl train`'s loop, side by side.
 
 Each setting trains the same model on the same file from the same start for --steps steps
-after a warm-up (the normalizer statistics are frozen by then, as after step 500 of a real
-run; the batch-building processes have started), and the settings take turns --rounds times
+after a warm-up, in one stream of batches (the normalizer statistics are frozen by then, as
+after step 500 of a real run; the batch-building processes have started and filled their
+queue), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers: the bundled models' training);
 every other is reported as a ratio to it. The last runs two data-parallel
@@ -72,11 +73,14 @@ def measure_here(path, setting, args) -> float:
         seed=args.seed,
     )
     trainer = make_trainer(path, simulator, config, workers=workers)
-    trainer.run(until_step=args.warmup)
     clock = time.thread_time if args.single_core else time.perf_counter
-    started = clock()
-    trainer.run()
-    return processes * args.steps * args.batch_size / (clock() - started)
+    times = {}
+
+    def on_step(step, loss):  # one stream of batches: the workers start before the timed steps
+        times[step] = clock()
+
+    trainer.run(on_step=on_step)
+    return processes * args.steps * args.batch_size / (times[args.warmup + args.steps] - times[args.warmup])
 
 
 def measure_distributed(path, setting, args) -> float:

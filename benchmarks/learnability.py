@@ -22,7 +22,12 @@ import torch
 
 from fignetctl.core.atomic import atomic_path
 from fignetctl.core.model.evaluation import errors_at
-from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples, overfit
+from fignetctl.core.model.learnability import (
+    fraction_unexplained,
+    one_step_examples,
+    overfit,
+    rigid_fraction_unexplained,
+)
 from fignetctl.core.model.rollout import rollout
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import simulator_config_for
@@ -58,6 +63,7 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=4)
     parser.add_argument("--size", default="small")
     parser.add_argument("--state", default="velocities", choices=["velocities", "positions"])
+    parser.add_argument("--target", default="vertices", choices=["vertices", "objects"])
     parser.add_argument("--loss", default="mse", choices=["mse", "huber"])
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
     parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
@@ -71,7 +77,7 @@ def main() -> None:
     data = read_trajectories(args.data)
     data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
     config = simulator_config_for(
-        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False
+        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False, target=args.target
     )
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})
@@ -92,9 +98,15 @@ def main() -> None:
     for step in report_at + [args.steps]:
         trainer.run(until_step=step)
         fvu = fraction_unexplained(trainer.simulator.eval(), examples)
+        rigid = rigid_fraction_unexplained(trainer.simulator, scenes)
         trainer.simulator.train()
         curve.append(
-            {"step": step, "seconds": time.perf_counter() - started, "fraction_unexplained": fvu["all"]}
+            {
+                "step": step,
+                "seconds": time.perf_counter() - started,
+                "fraction_unexplained": fvu["all"],
+                "rigid_fraction_unexplained": rigid["all"],
+            }
         )
         print(json.dumps(curve[-1]), flush=True)
     seconds = time.perf_counter() - started
@@ -103,13 +115,23 @@ def main() -> None:
         "args": vars(args),
         "train_seconds": seconds,
         "fraction_unexplained": fvu,
+        "rigid_fraction_unexplained": rigid,
         "curve": curve,
         "rollout": rollout_errors(simulator, scenes),
         "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]])),
     }
     print(
         json.dumps(
-            {k: result[k] for k in ("fraction_unexplained", "rollout", "final_loss", "train_seconds")},
+            {
+                k: result[k]
+                for k in (
+                    "fraction_unexplained",
+                    "rigid_fraction_unexplained",
+                    "rollout",
+                    "final_loss",
+                    "train_seconds",
+                )
+            },
             indent=1,
         )
     )

@@ -42,29 +42,93 @@ def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
 
 @torch.no_grad()
 def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
-    """{"all": FVU over every component, "position": over a_x, "velocity": over a_u (velocity
-    state only), "per_component": [...]} of a model on one_step_examples."""
+    """{"all": FVU over every component, "position": over a_x (a_p and a_θ for per-object
+    targets), "velocity": over a_u (a_v and a_ω; velocity state only), "per_component": [...]}
+    of a model on one_step_examples."""
+    from fignetctl.core.model.training import output_rows
+
     predictions, targets = [], []
     for start in range(0, len(examples), batch_size):
         chunk = examples[start : start + batch_size]
         graph = batch_graphs([scene_graph.graph for scene_graph, _ in chunk])
-        rows, offset = [], 0
-        for scene_graph, _ in chunk:
-            rows.append(torch.arange(scene_graph.num_dynamic_vertex_nodes) + offset)
-            offset += scene_graph.graph.num_nodes
-        predictions.append(simulator(graph)[torch.cat(rows)])
+        rows = output_rows([scene_graph for scene_graph, _ in chunk], simulator.config.target)
+        predictions.append(simulator(graph)[rows])
         targets.append(simulator.normalized_targets(torch.cat([t for _, t in chunk]), accumulate=False))
     prediction, target = torch.cat(predictions).double(), torch.cat(targets).double()
     residual = ((prediction - target) ** 2).sum(0)
     spread = ((target - target.mean(0)) ** 2).sum(0)
+    split = 3 if target.shape[1] <= 6 else target.shape[1] // 2
     result = {
         "all": float(residual.sum() / spread.sum()),
-        "position": float(residual[:3].sum() / spread[:3].sum()),
+        "position": float(residual[:split].sum() / spread[:split].sum()),
         "per_component": (residual / spread.clamp(min=1e-300)).tolist(),
-        "vertices": int(target.shape[0]),
+        "rows": int(target.shape[0]),
     }
-    if target.shape[1] == 6:
-        result["velocity"] = float(residual[3:].sum() / spread[3:].sum())
+    if target.shape[1] > split:
+        result["velocity"] = float(residual[split:].sum() / spread[split:].sum())
+    return result
+
+
+@torch.no_grad()
+def rigid_fraction_unexplained(simulator, scenes) -> dict:
+    """FVU of the rigid next step, the same measure for every kind of target: each noise-free
+    frame t is predicted (`simulator.predict`, the network alone), and the per-vertex corrections
+    a_x = x_{t+1} − x_t − u_t and a_u = u_{t+1} − u_t of the predicted and the recorded next
+    poses and velocities are compared, per component over every dynamic vertex.
+
+    {"all": mean over the components of their FVU, "position": over a_x's three, "velocity":
+    over a_u's three (velocity state only), "per_component": [...]}"""
+    from fignetctl.core.model.scene_graph import rigid_point_velocities
+
+    predicted, recorded = [], []
+    for scene in scenes:
+        geometry, dt = scene.geometry, scene.dt
+        rows, owner = geometry.dynamic_vertices, geometry.vertex_object[geometry.dynamic_vertices]
+        for t in range(1, scene.positions.shape[0] - 1):
+            velocities = (
+                (scene.velocities[t], scene.angular_velocities[t])
+                if simulator.config.uses_velocities
+                else None
+            )
+            step = simulator.predict(
+                geometry,
+                scene.positions[t - 1 : t + 2],
+                scene.quaternions[t - 1 : t + 2],
+                velocities=velocities,
+            )
+            now = geometry.world_vertices(scene.positions[t], scene.quaternions[t], rows)
+            if velocities is None:
+                u_now = now - geometry.world_vertices(scene.positions[t - 1], scene.quaternions[t - 1], rows)
+            else:
+                u_now = rigid_point_velocities(now, owner, scene.positions[t], *(v * dt for v in velocities))
+            for poses, into in (
+                (step, predicted),
+                (
+                    (
+                        scene.positions[t + 1],
+                        scene.quaternions[t + 1],
+                        scene.velocities[t + 1],
+                        scene.angular_velocities[t + 1],
+                    ),
+                    recorded,
+                ),
+            ):
+                after = geometry.world_vertices(poses[0], poses[1], rows)
+                parts = [after - now - u_now]
+                if poses[2] is not None and velocities is not None:
+                    parts.append(
+                        rigid_point_velocities(after, owner, poses[0], poses[2] * dt, poses[3] * dt) - u_now
+                    )
+                into.append(np.concatenate(parts, axis=1))
+    prediction, target = np.concatenate(predicted), np.concatenate(recorded)
+    per_component = ((prediction - target) ** 2).sum(0) / ((target - target.mean(0)) ** 2).sum(0)
+    result = {
+        "all": float(per_component.mean()),
+        "position": float(per_component[:3].mean()),
+        "per_component": per_component.tolist(),
+    }
+    if len(per_component) == 6:
+        result["velocity"] = float(per_component[3:].mean())
     return result
 
 

@@ -8,7 +8,12 @@ import pytest
 import torch
 
 from fignetctl.core import movi
-from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples, overfit
+from fignetctl.core.model.learnability import (
+    fraction_unexplained,
+    one_step_examples,
+    overfit,
+    rigid_fraction_unexplained,
+)
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import simulator_config_for
 from fignetctl.core.shapes import ShapeAsset
@@ -68,3 +73,29 @@ def test_a_model_overfits_a_few_boxes_to_most_of_the_one_step_variance(count, se
     explained = fraction_unexplained(simulator, examples)
     assert explained["all"] < MOST_UNEXPLAINED
     assert explained["position"] < MOST_UNEXPLAINED and explained["velocity"] < MOST_UNEXPLAINED
+
+
+class ReplaySimulator:
+    """A 'model' that answers each frame with the recorded next one, or with the frame itself
+    moved on at constant velocity (`drift`)."""
+
+    def __init__(self, scene, drift=False):
+        self.scene, self.drift = scene, drift
+        self.config = CONFIG
+
+    def predict(self, geometry, positions, quaternions, velocities=None):
+        t = int(np.flatnonzero(np.all(self.scene.positions == positions[1], axis=(1, 2)))[0])
+        if self.drift:
+            return positions[1] + velocities[0] * self.scene.dt, quaternions[1], *velocities
+        s = self.scene
+        return s.positions[t + 1], s.quaternions[t + 1], s.velocities[t + 1], s.angular_velocities[t + 1]
+
+
+def test_the_rigid_fraction_unexplained_is_zero_for_the_recorded_motion_and_not_for_drifting():
+    data = cube_scene(2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5)))
+    scenes = scenes_from_data(data, CONFIG, TRAINING_STATIC_REACH)
+    exact = rigid_fraction_unexplained(ReplaySimulator(scenes[0]), scenes)
+    assert exact["all"] < 1e-9 and len(exact["per_component"]) == 6
+    drifting = rigid_fraction_unexplained(ReplaySimulator(scenes[0], drift=True), scenes)
+    assert drifting["velocity"] > 0.5  # never changes its velocity: gravity and contacts unexplained
+    assert drifting["all"] > 0.1

@@ -63,7 +63,6 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=4)
     parser.add_argument("--size", default="small")
     parser.add_argument("--state", default="velocities", choices=["velocities", "positions"])
-    parser.add_argument("--target", default="vertices", choices=["vertices", "objects"])
     parser.add_argument("--loss", default="mse", choices=["mse", "huber"])
     parser.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
     parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
@@ -77,7 +76,7 @@ def main() -> None:
     data = read_trajectories(args.data)
     data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
     config = simulator_config_for(
-        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False, target=args.target
+        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False
     )
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})

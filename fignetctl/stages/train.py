@@ -43,12 +43,6 @@ class Settings:
         "The model's input: frame t and recorded velocities, or frames t-1 and t (docs/simulator.md).",
         choices=("velocities", "positions"),
     )
-    target: str = setting(
-        "vertices",
-        "What the network predicts: corrections per vertex, or per object at its object node "
-        "(velocity state only; docs/simulator.md).",
-        choices=("vertices", "objects"),
-    )
     static_receivers: bool = setting(
         False, "Face-face edges into static faces too (as the models before this option)."
     )
@@ -129,10 +123,6 @@ def run(
     rates = settings.learning_rate
     if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
         raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
-    if settings.target == "objects" and settings.state != "velocities":
-        raise SettingError(
-            "--target objects needs --state velocities: an object's velocity is part of its state"
-        )
     if settings.resume and overwrite:
         raise SettingError("--resume continues --output, --overwrite replaces it: give one")
     if settings.resume and init_from:
@@ -148,7 +138,6 @@ def run(
         settings.speculative,
         settings.state,
         settings.static_receivers,
-        settings.target,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

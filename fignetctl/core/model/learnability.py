@@ -42,30 +42,28 @@ def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
 
 @torch.no_grad()
 def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
-    """{"all": FVU over every component, "position": over a_x (a_p and a_θ for per-object
-    targets), "velocity": over a_u (a_v and a_ω; velocity state only), "per_component": [...]}
-    of a model on one_step_examples."""
-    from fignetctl.core.model.training import output_rows
+    """{"all": FVU over every component, "position": over a_x, "velocity": over a_u (velocity
+    state only), "per_component": [...]} of a model on one_step_examples."""
+    from fignetctl.core.model.training import dynamic_rows
 
     predictions, targets = [], []
     for start in range(0, len(examples), batch_size):
         chunk = examples[start : start + batch_size]
         graph = batch_graphs([scene_graph.graph for scene_graph, _ in chunk])
-        rows = output_rows([scene_graph for scene_graph, _ in chunk], simulator.config.target)
+        rows = dynamic_rows([scene_graph for scene_graph, _ in chunk])
         predictions.append(simulator(graph)[rows])
         targets.append(simulator.normalized_targets(torch.cat([t for _, t in chunk]), accumulate=False))
     prediction, target = torch.cat(predictions).double(), torch.cat(targets).double()
     residual = ((prediction - target) ** 2).sum(0)
     spread = ((target - target.mean(0)) ** 2).sum(0)
-    split = 3 if target.shape[1] <= 6 else target.shape[1] // 2
     result = {
         "all": float(residual.sum() / spread.sum()),
-        "position": float(residual[:split].sum() / spread[:split].sum()),
+        "position": float(residual[:3].sum() / spread[:3].sum()),
         "per_component": (residual / spread.clamp(min=1e-300)).tolist(),
-        "rows": int(target.shape[0]),
+        "vertices": int(target.shape[0]),
     }
-    if target.shape[1] > split:
-        result["velocity"] = float(residual[split:].sum() / spread[split:].sum())
+    if target.shape[1] == 6:
+        result["velocity"] = float(residual[3:].sum() / spread[3:].sum())
     return result
 
 

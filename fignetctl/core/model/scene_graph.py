@@ -299,15 +299,6 @@ class SceneGraph:
         """(3, Vd, 3) world positions of geometry.dynamic_vertices at t−1, t, t+1."""
         return self.node_positions[:, : self.num_dynamic_vertex_nodes]
 
-    def output_rows(self, target: str = "vertices") -> np.ndarray:
-        """The nodes whose decoded outputs a model uses: the dynamic vertex nodes (the first
-        nodes) for target "vertices", the dynamic object nodes (the last ones, in object order)
-        for target "objects"."""
-        if target == "objects":
-            num_nodes = self.graph.num_nodes
-            return np.arange(num_nodes - int(np.count_nonzero(~self.geometry.static)), num_nodes)
-        return np.arange(self.num_dynamic_vertex_nodes)
-
     @functools.cached_property
     def vertices(self) -> np.ndarray:
         """(3, V, 3) float64 world vertices of frames t−1, t, t+1 it was built from.

@@ -26,18 +26,6 @@ Two kinds of state (`SimulatorConfig.state`):
 
   The next pose is shape-matched to x_{t+1}, the next (v, ω) is the rigid velocity field
   fitted to u_{t+1} by least squares (`rigid_velocities_from_vertices`).
-
-Two kinds of target (`SimulatorConfig.target`), for a velocity state:
-
-- ``"vertices"``: the two vectors per vertex above, decoded at the mesh nodes.
-- ``"objects"``: twelve numbers per dynamic object, decoded at its object node: with the
-  object's centre p, orientation q, and linear and angular velocity v, ω per step,
-
-      p_{t+1} = p_t + v_t + a_p        q_{t+1} = quat(ω_t + a_θ) ⊗ q_t
-      v_{t+1} = v_t + a_v              ω_{t+1} = ω_t + a_ω
-
-  so free flight is a_p = g·dt²/2, a_θ = a_ω = 0, a_v = g·dt (`integrate_objects`), and the
-  prediction is rigid by construction (no shape matching).
 """
 
 from __future__ import annotations
@@ -70,7 +58,6 @@ from fignetctl.core.transforms import (
 from fignetctl.errors import FignetError
 
 STATES = ("positions", "velocities")
-TARGETS = ("vertices", "objects")
 
 # Floor of every normalizer's std: features are in metres (per step) and material units, so a
 # spread below a micrometre is float rounding, which must not be blown up into signal.
@@ -102,22 +89,13 @@ class SimulatorConfig:
     """Seconds per step of the training data (None: not recorded, model files before it)."""
     gravity: tuple | None = None
     """Gravity (m/s²) of the training data (None: not recorded)."""
-    target: str = "vertices"
-    """'vertices' (per-vertex corrections, decoded at the mesh nodes) or 'objects' (each
-    dynamic object's pose and velocity corrections, decoded at its object node; velocity
-    state only); module docstring."""
 
     def __post_init__(self) -> None:
         if self.state not in STATES:
             raise ValueError(f"state must be one of {STATES}, not {self.state!r}")
-        if self.target not in TARGETS:
-            raise ValueError(f"target must be one of {TARGETS}, not {self.target!r}")
-        if self.target == "objects" and self.state != "velocities":
-            raise ValueError("per-object targets need the velocity state")
-        size = output_size_for(self.state, self.target)
-        if self.network.output_size != size:
+        if self.network.output_size != output_size_for(self.state):
             raise ValueError(
-                f"a {self.state!r} model with {self.target!r} targets decodes {size} numbers per node, "
+                f"a {self.state!r} model decodes {output_size_for(self.state)} numbers per node, "
                 f"the network {self.network.output_size}"
             )
 
@@ -145,15 +123,11 @@ class SimulatorConfig:
             state=values.get("state", "positions"),
             dt=values.get("dt"),
             gravity=None if gravity is None else tuple(gravity),
-            target=values.get("target", "vertices"),
         )
 
 
-def output_size_for(state: str, target: str = "vertices") -> int:
-    """Numbers decoded per node: a_x (positions), a_x and a_u (velocities), or an object's
-    a_p, a_θ, a_v, a_ω (target 'objects')."""
-    if target == "objects":
-        return 12
+def output_size_for(state: str) -> int:
+    """Numbers decoded per node: a_x (positions), or a_x and a_u (velocities)."""
     return 6 if state == "velocities" else 3
 
 
@@ -173,7 +147,6 @@ class LearnedSimulator(nn.Module):
             }
         )
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
-        self.per_object = config.target == "objects"
         self.source_sha256 = None  # the SHA-256 of the model file it was loaded from, if any
         self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
 
@@ -231,19 +204,6 @@ class LearnedSimulator(nn.Module):
         acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
         return integrate(acceleration.detach().cpu().double().numpy(), vertices_previous, vertices_now)
 
-    def inverse_postprocess_objects(self, next_state, state, accumulate=False):
-        """Per-object targets: what the network must output at the dynamic object nodes to
-        reach `next_state` from `state`, each (positions, quaternions, linear, angular) of the
-        dynamic objects (velocities per step); normalized (D, 12) float32 tensor."""
-        targets = object_targets(next_state, state)
-        return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
-
-    def postprocess_objects(self, normalized_acceleration, state):
-        """The network's output at the dynamic object nodes -> (positions, quaternions, linear,
-        angular) of those objects at t+1 (`integrate_objects`); float64 numpy."""
-        acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
-        return integrate_objects(acceleration.detach().cpu().double().numpy(), state)
-
     def step_velocities(self, positions, quaternions, velocities):
         """(O, 3) x2 linear and angular velocities in metres and radians per step at frame t:
         the given ones (m/s, rad/s) times dt, or, when None, estimated from frames t−1 and t."""
@@ -287,9 +247,7 @@ class LearnedSimulator(nn.Module):
         if free_flight is not None and np.array_equal(flying, ~geometry.static):  # nothing touches anything
             predicted = self._standing_still(positions[2], quaternions[2])
         else:
-            predicted = self._network_prediction(
-                geometry, scene_graph, positions[2], quaternions[2], step_velocities
-            )
+            predicted = self._network_prediction(geometry, scene_graph, positions[2], quaternions[2])
         if flying.any():
             flown = self._free_flight(positions, quaternions, step_velocities, free_flight)
             for values, flown_values in zip(predicted, flown):
@@ -297,15 +255,9 @@ class LearnedSimulator(nn.Module):
                     values[flying] = flown_values[flying]
         return self._physical(predicted)
 
-    def _network_prediction(
-        self, geometry, scene_graph, static_positions, static_quaternions, step_velocities
-    ):
+    def _network_prediction(self, geometry, scene_graph, static_positions, static_quaternions):
         """[positions, quaternions, linear, angular] at t+1 (velocities per step, or None)."""
         device = next(self.parameters()).device
-        if self.per_object:
-            return self._object_prediction(
-                geometry, scene_graph, static_positions, static_quaternions, step_velocities
-            )
         normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
         previous, now = scene_graph.dynamic_vertex_positions[:2]
         next_vertices, next_vertex_velocities = self.postprocess(normalized, previous, now)
@@ -319,25 +271,6 @@ class LearnedSimulator(nn.Module):
             quaternions,
             *rigid_velocities_from_vertices(geometry, next_vertices, next_vertex_velocities, positions),
         ]
-
-    def _object_prediction(
-        self, geometry, scene_graph, static_positions, static_quaternions, step_velocities
-    ):
-        device = next(self.parameters()).device
-        rows = torch.from_numpy(scene_graph.output_rows("objects")).to(device)
-        dynamic = ~geometry.static
-        now = scene_graph.poses[0][1], scene_graph.poses[1][1]
-        state = (now[0][dynamic], now[1][dynamic], step_velocities[0][dynamic], step_velocities[1][dynamic])
-        predicted = self.postprocess_objects(self(scene_graph.graph.to(device))[rows], state)
-        result = [
-            np.array(static_positions, np.float64),
-            np.array(static_quaternions, np.float64),
-            np.zeros((geometry.num_objects, 3)),
-            np.zeros((geometry.num_objects, 3)),
-        ]
-        for values, dynamic_values in zip(result, predicted):
-            values[dynamic] = dynamic_values
-        return result
 
     def _standing_still(self, positions, quaternions):
         """The same list as `_network_prediction` for objects kept at the given poses."""
@@ -385,41 +318,6 @@ def integrate(acceleration, vertices_previous, vertices_now):
     if acceleration.shape[1] == 3:
         return next_vertices, None
     return next_vertices, velocity + acceleration[:, 3:]
-
-
-def object_targets(next_state, state):
-    """The raw per-object targets that `integrate_objects` turns back into `next_state`.
-
-    next_state, state : (positions (D, 3), quaternions (D, 4), linear (D, 3), angular (D, 3)),
-        velocities in metres and radians per step
-    returns (D, 12) [a_p, a_θ, a_v, a_ω] float64: a_p = p' − p − v, a_θ = rotvec(q' ⊗ q⁻¹) − ω,
-        a_v = v' − v, a_ω = ω' − ω
-    """
-    from fignetctl.core.transforms import quat_to_rotation_vector
-
-    positions, quaternions, linear, angular = (np.asarray(x, np.float64) for x in state)
-    next_positions, next_quaternions, next_linear, next_angular = (
-        np.asarray(x, np.float64) for x in next_state
-    )
-    turn = quat_to_rotation_vector(quat_multiply(next_quaternions, quat_conjugate(quaternions)))
-    return np.concatenate(
-        [next_positions - positions - linear, turn - angular, next_linear - linear, next_angular - angular],
-        axis=1,
-    )
-
-
-def integrate_objects(acceleration, state):
-    """(D, 12) per-object [a_p, a_θ, a_v, a_ω] and the state at t (`object_targets`) -> the
-    state at t+1: positions, quaternions, linear and angular velocities per step, float64."""
-    acceleration = np.asarray(acceleration, np.float64)
-    positions, quaternions, linear, angular = (np.asarray(x, np.float64) for x in state)
-    turn = quat_from_rotation_vector(angular + acceleration[:, 3:6])
-    return (
-        positions + linear + acceleration[:, :3],
-        quat_normalize(quat_multiply(turn, quaternions)),
-        linear + acceleration[:, 6:9],
-        angular + acceleration[:, 9:12],
-    )
 
 
 def free_flight_poses(positions, quaternions, acceleration):

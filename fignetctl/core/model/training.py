@@ -31,16 +31,10 @@ from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
-from fignetctl.core.model.simulator import (
-    LearnedSimulator,
-    SimulatorConfig,
-    acceleration_targets,
-    object_targets,
-)
+from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
 from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
-from fignetctl.core.transforms import quat_conjugate, quat_multiply
 from fignetctl.errors import FignetError
 
 
@@ -129,8 +123,8 @@ def jittered_step_velocities(scene, frame, generator, config: TrainingSettings):
 
 def training_example(simulator_config, scene, frame, generator, config: TrainingSettings):
     """One noisy example: the raw graph and the raw targets of its dynamic vertices, (Vd, 3)
-    accelerations, or (Vd, 6) position and velocity corrections for a velocity state, or of its
-    dynamic objects, (D, 12), for per-object targets (simulator.py's module docstring)."""
+    accelerations, or (Vd, 6) position and velocity corrections for a velocity state
+    (simulator.py's module docstring)."""
     geometry = scene.geometry
     clean_positions, clean_quaternions = (
         scene.positions[frame - 1 : frame + 2],
@@ -145,10 +139,6 @@ def training_example(simulator_config, scene, frame, generator, config: Training
         else None
     )
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
-    if simulator_config.target == "objects":
-        return scene_graph, object_training_targets(
-            scene, frame, (positions[1], quaternions[1]), velocities, config.target_keeps_noise
-        )
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
         after = (
@@ -167,29 +157,6 @@ def training_example(simulator_config, scene, frame, generator, config: Training
         )
     targets = acceleration_targets(after, previous, now, next_velocities)
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
-
-
-def object_training_targets(scene, frame, noisy_pose, noisy_velocities, keeps_noise) -> torch.Tensor:
-    """(D, 12) raw per-object targets (simulator.object_targets) from the jittered frame t and
-    velocities to frame t+1; with `keeps_noise` frame t+1 carries frame t's rigid jitter (each
-    object's centre moved by the same translation and turned by the same rotation about
-    itself), as the per-vertex target does."""
-    dynamic = ~scene.geometry.static
-    next_positions = np.array(scene.positions[frame + 1], np.float64)
-    next_quaternions = np.array(scene.quaternions[frame + 1], np.float64)
-    if keeps_noise:
-        next_positions += noisy_pose[0] - scene.positions[frame]
-        jitter = quat_multiply(noisy_pose[1], quat_conjugate(scene.quaternions[frame]))
-        next_quaternions = quat_multiply(jitter, next_quaternions)
-    next_state = (
-        next_positions,
-        next_quaternions,
-        scene.velocities[frame + 1] * scene.dt,
-        scene.angular_velocities[frame + 1] * scene.dt,
-    )
-    state = (*noisy_pose, *noisy_velocities)
-    targets = object_targets([x[dynamic] for x in next_state], [np.asarray(x)[dynamic] for x in state])
-    return torch.from_numpy(targets.astype(np.float32))
 
 
 class TrainingBatches(torch.utils.data.Dataset):
@@ -215,7 +182,7 @@ class TrainingBatches(torch.utils.data.Dataset):
             )
         return {
             "graph": batch_graphs([e[0].graph for e in examples]),
-            "rows": output_rows([e[0] for e in examples], self.simulator_config.target),
+            "rows": dynamic_rows([e[0] for e in examples]),
             "targets": torch.cat([e[1] for e in examples]),
         }
 
@@ -353,12 +320,11 @@ def regression_loss(predictions, targets, config: TrainingSettings) -> torch.Ten
     raise FignetError(f"unknown loss {config.loss!r}: choose 'mse' or 'huber'")
 
 
-def output_rows(scene_graphs, target="vertices") -> torch.Tensor:
-    """Indices, in the batched graph, of the nodes each scene graph's targets belong to (its
-    dynamic vertex nodes, or its dynamic object nodes for target 'objects')."""
+def dynamic_rows(scene_graphs) -> torch.Tensor:
+    """Indices, in the batched graph, of the dynamic vertex nodes of each scene graph."""
     rows, offset = [], 0
     for scene_graph in scene_graphs:
-        rows.append(torch.from_numpy(scene_graph.output_rows(target)) + offset)
+        rows.append(torch.arange(scene_graph.num_dynamic_vertex_nodes) + offset)
         offset += scene_graph.graph.num_nodes
     return torch.cat(rows)
 
@@ -442,7 +408,6 @@ def simulator_config_for(
     speculative=False,
     state="positions",
     static_receivers=True,
-    target="vertices",
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
@@ -457,14 +422,13 @@ def simulator_config_for(
     )
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
-    network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state, target))
+    network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state))
     return SimulatorConfig(
         network=network,
         graph=graph,
         max_faces_per_object=max_faces,
         max_static_edge=max_static_edge,
         state=state,
-        target=target,
     )
 
 

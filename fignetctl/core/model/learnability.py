@@ -69,55 +69,31 @@ def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
 
 @torch.no_grad()
 def rigid_fraction_unexplained(simulator, scenes) -> dict:
-    """FVU of the rigid next step, the same measure for every kind of target: each noise-free
-    frame t is predicted (`simulator.predict`, the network alone), and the per-vertex corrections
-    a_x = x_{t+1} − x_t − u_t and a_u = u_{t+1} − u_t of the predicted and the recorded next
-    poses and velocities are compared, per component over every dynamic vertex.
+    """FVU of the rigid next step, what a rollout keeps, whatever the network decodes: each
+    noise-free frame t is stepped by `simulator.predict` (the network alone, shape matching and
+    the rigid velocity fit included), and the per-vertex corrections a_x = x_{t+1} − x_t − u_t
+    and a_u = u_{t+1} − u_t of the predicted and the recorded next pose and velocity are
+    compared, per component over every dynamic vertex.
 
     {"all": mean over the components of their FVU, "position": over a_x's three, "velocity":
     over a_u's three (velocity state only), "per_component": [...]}"""
-    from fignetctl.core.model.scene_graph import rigid_point_velocities
-
     predicted, recorded = [], []
     for scene in scenes:
-        geometry, dt = scene.geometry, scene.dt
-        rows, owner = geometry.dynamic_vertices, geometry.vertex_object[geometry.dynamic_vertices]
         for t in range(1, scene.positions.shape[0] - 1):
-            velocities = (
-                (scene.velocities[t], scene.angular_velocities[t])
-                if simulator.config.uses_velocities
-                else None
-            )
+            velocities = None
+            if simulator.config.uses_velocities:
+                velocities = (scene.velocities[t], scene.angular_velocities[t])
             step = simulator.predict(
-                geometry,
+                scene.geometry,
                 scene.positions[t - 1 : t + 2],
                 scene.quaternions[t - 1 : t + 2],
                 velocities=velocities,
             )
-            now = geometry.world_vertices(scene.positions[t], scene.quaternions[t], rows)
-            if velocities is None:
-                u_now = now - geometry.world_vertices(scene.positions[t - 1], scene.quaternions[t - 1], rows)
-            else:
-                u_now = rigid_point_velocities(now, owner, scene.positions[t], *(v * dt for v in velocities))
-            for poses, into in (
-                (step, predicted),
-                (
-                    (
-                        scene.positions[t + 1],
-                        scene.quaternions[t + 1],
-                        scene.velocities[t + 1],
-                        scene.angular_velocities[t + 1],
-                    ),
-                    recorded,
-                ),
-            ):
-                after = geometry.world_vertices(poses[0], poses[1], rows)
-                parts = [after - now - u_now]
-                if poses[2] is not None and velocities is not None:
-                    parts.append(
-                        rigid_point_velocities(after, owner, poses[0], poses[2] * dt, poses[3] * dt) - u_now
-                    )
-                into.append(np.concatenate(parts, axis=1))
+            truth = (scene.positions[t + 1], scene.quaternions[t + 1], None, None)
+            if velocities is not None:
+                truth = truth[:2] + (scene.velocities[t + 1], scene.angular_velocities[t + 1])
+            predicted.append(_vertex_corrections(scene, t, step))
+            recorded.append(_vertex_corrections(scene, t, truth))
     prediction, target = np.concatenate(predicted), np.concatenate(recorded)
     per_component = ((prediction - target) ** 2).sum(0) / ((target - target.mean(0)) ** 2).sum(0)
     result = {
@@ -128,6 +104,27 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
     if len(per_component) == 6:
         result["velocity"] = float(per_component[3:].mean())
     return result
+
+
+def _vertex_corrections(scene, t, after):
+    """(Vd, 3) a_x, or (Vd, 6) [a_x, a_u], of the dynamic vertices going from frame t of `scene`
+    to `after` = (positions, quaternions, linear, angular velocities in m/s and rad/s, or None):
+    u_t is the recorded velocity of frame t when `after` has velocities, else x_t − x_{t−1}."""
+    from fignetctl.core.model.scene_graph import rigid_point_velocities
+
+    geometry, dt = scene.geometry, scene.dt
+    rows = geometry.dynamic_vertices
+    owner = geometry.vertex_object[rows]
+    now = geometry.world_vertices(scene.positions[t], scene.quaternions[t], rows)
+    if after[2] is None:
+        u_now = now - geometry.world_vertices(scene.positions[t - 1], scene.quaternions[t - 1], rows)
+        return geometry.world_vertices(after[0], after[1], rows) - now - u_now
+    u_now = rigid_point_velocities(
+        now, owner, scene.positions[t], scene.velocities[t] * dt, scene.angular_velocities[t] * dt
+    )
+    next_vertices = geometry.world_vertices(after[0], after[1], rows)
+    u_next = rigid_point_velocities(next_vertices, owner, after[0], after[2] * dt, after[3] * dt)
+    return np.concatenate([next_vertices - now - u_now, u_next - u_now], axis=1)
 
 
 def overfit(

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from mesh_vs_truth import truth_to
+from mesh_vs_truth import chamfer, truth_to
 
 FACES = (100, 300, 1000, 3000, 0)
 
@@ -39,13 +39,9 @@ def mesh_errors(mesh, truth, samples=20000, seed=0):
     truth's largest side, and the IoU of both meshes voxelised (pitch 1/64 of that side) and
     filled. The IoU is None when the truth is not watertight (the lego brick is open
     underneath, the mug has a cavity): its inside is then not defined."""
-    from scipy.spatial import cKDTree
-
-    a = mesh.sample(samples, seed=seed)
-    b = truth.sample(samples, seed=seed)
-    chamfer = 0.5 * (cKDTree(b).query(a)[0].mean() + cKDTree(a).query(b)[0].mean())
+    distance = chamfer(mesh, truth, samples, seed)
     if not truth.is_watertight:
-        return float(chamfer / truth.extents.max()), None
+        return distance / float(truth.extents.max()), None
     pitch = truth.extents.max() / 64
     solid_a, solid_b = mesh.voxelized(pitch).fill(), truth.voxelized(pitch).fill()
     low = np.minimum(mesh.bounds[0], truth.bounds[0])
@@ -53,7 +49,7 @@ def mesh_errors(mesh, truth, samples=20000, seed=0):
     points = np.random.default_rng(seed).uniform(low, high, size=(40000, 3))
     inside_a, inside_b = solid_a.is_filled(points), solid_b.is_filled(points)
     iou = (inside_a & inside_b).sum() / max((inside_a | inside_b).sum(), 1)
-    return float(chamfer / truth.extents.max()), float(iou)
+    return distance / float(truth.extents.max()), float(iou)
 
 
 def main():
@@ -142,13 +138,13 @@ def main():
             started = time.perf_counter()
             extraction = extract_object(model.density, box, settings)
             seconds = time.perf_counter() - started
-            chamfer, volume_iou = mesh_errors(extraction.object_mesh, truth)
+            chamfer_fraction, volume_iou = mesh_errors(extraction.object_mesh, truth)
             rows.append(
                 {
                     "faces": faces,
                     "faces_made": len(extraction.object_mesh.faces),
                     "seconds": round(seconds, 3),
-                    "chamfer_fraction": round(chamfer, 4),
+                    "chamfer_fraction": round(chamfer_fraction, 4),
                     "volume_iou": None if volume_iou is None else round(volume_iou, 3),
                     "watertight": bool(extraction.object_mesh.is_watertight),
                 }

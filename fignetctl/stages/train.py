@@ -49,6 +49,11 @@ class Settings:
     speculative: bool = setting(
         False, "Also pair moving faces with static ones up to a step ahead (docs/simulator.md)."
     )
+    mass_feature: str = setting(
+        "kg",
+        "The nodes' mass feature: in kg, or its logarithm (a mass ratio becomes a difference).",
+        choices=("kg", "log"),
+    )
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
@@ -138,6 +143,7 @@ def run(
         settings.speculative,
         settings.state,
         settings.static_receivers,
+        settings.mass_feature == "log",
     )
     training_config = TrainingSettings(
         steps=settings.steps,

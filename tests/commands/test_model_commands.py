@@ -79,6 +79,21 @@ def test_train_learning_rate_option_sets_the_schedule(trained, tmp_path):
     assert result.exit_code == 2 and "--learning-rate" in result.output
 
 
+def test_train_mass_feature_option_reaches_the_model_file(trained, tmp_path):
+    from fignetctl.core.model.checkpoint import load_checkpoint
+
+    _, data, model = trained
+    assert load_checkpoint(model).config.graph.log_mass is False
+    out = tmp_path / "log-mass.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--mass-feature", "log"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert load_checkpoint(out).config.graph.log_mass is True
+    result = CliRunner().invoke(cli, [*args[:4], "--init-from", str(model), "--overwrite", *args[4:]])
+    assert result.exit_code == 1 and "--mass-feature kg" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_train_refuses_existing_output_and_resumes_on_request(trained):
     folder, data, model = trained
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])

@@ -8,7 +8,8 @@ Nodes, in this order:
 
 Node features (12): velocity x_t − x_{t−1} (3; for a velocity state, each dynamic point's
 instantaneous velocity (v + ω × (x − c)) times dt), kinematic displacement x_{t+1} − x_t of static
-nodes (3, zero for dynamic ones), mass, friction, restitution, the static bit, and a node-type
+nodes (3, zero for dynamic ones), mass (kg, or its logarithm with `GraphConfig.log_mass`),
+friction, restitution, the static bit, and a node-type
 one-hot (mesh, object).
 
 Edge sets (all features relative, so translating the whole scene changes nothing):
@@ -100,6 +101,10 @@ class GraphConfig:
     99th percentile of floor impacts (0.32 m per frame). Pairs of two dynamic objects keep
     the radius: with the margin too they pair nearly all their faces while both fly fast
     (3.6× the face–face edges of 10 held-out trajectories on average, 47,758 at most)."""
+    log_mass: bool = False
+    """True: the mass feature is ln(mass / kg) (0 for static objects, whose mass is 0), so a
+    mass ratio is a difference, whatever the masses; False: mass in kg (model files before
+    this field)."""
 
 
 def graph_signature_for(config: GraphConfig) -> GraphSignature:
@@ -360,7 +365,7 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
     )
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
-    node_features = node_feature_rows(geometry, node_vertex, node_object, node_history)
+    node_features = node_feature_rows(geometry, node_vertex, node_object, node_history, config.log_mass)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
     num_dynamic = len(geometry.dynamic_vertices)
     touching = np.zeros(len(geometry.static), bool)
@@ -501,16 +506,21 @@ class VertexNodes:
         return self.sorted_nodes[np.searchsorted(self.sorted_vertices, vertices)]
 
 
-def node_feature_rows(geometry, node_vertex, node_object, node_history):
-    """node_history (3, N, 3) positions at t−1, t, t+1 -> (N, 12) float32 node features."""
+def node_feature_rows(geometry, node_vertex, node_object, node_history, log_mass=False):
+    """node_history (3, N, 3) positions at t−1, t, t+1 -> (N, 12) float32 node features;
+    `log_mass`: the mass column is ln(mass) (0 where the mass is 0: static objects)."""
     static = geometry.static[node_object]
+    properties = geometry.properties[node_object]
+    if log_mass:
+        mass = properties[:, 0]
+        properties = np.column_stack([np.log(np.where(mass > 0, mass, 1.0)), properties[:, 1:]])
     velocity = node_history[1] - node_history[0]
     kinematic_displacement = (node_history[2] - node_history[1]) * static[:, None]
     is_object_node = node_vertex < 0
     columns = [
         velocity,
         kinematic_displacement,
-        geometry.properties[node_object],
+        properties,
         static[:, None],
         (~is_object_node)[:, None],
         is_object_node[:, None],

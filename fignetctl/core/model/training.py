@@ -389,6 +389,12 @@ def _load_weights(simulator, path) -> None:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size)."""
     source = load_checkpoint(path)
+    if source.config.graph.log_mass != simulator.config.graph.log_mass:
+        feature = "log" if source.config.graph.log_mass else "kg"
+        raise FignetError(
+            f"{path}: it reads mass as {feature}, so its weights and statistics fit that feature; "
+            f"give --mass-feature {feature}"
+        )
     try:
         simulator.load_state_dict(source.state_dict())
     except RuntimeError as error:
@@ -408,6 +414,7 @@ def simulator_config_for(
     speculative=False,
     state="positions",
     static_receivers=True,
+    log_mass=False,
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
@@ -419,6 +426,7 @@ def simulator_config_for(
         max_vertex_offset=max_vertex_offset,
         speculative=speculative,
         static_receivers=static_receivers,
+        log_mass=log_mass,
     )
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)

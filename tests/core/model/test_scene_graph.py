@@ -150,3 +150,31 @@ def test_signature_matches_built_graphs():
         signature = graph_signature_for(config)
         assert {n: e.features.shape[1] for n, e in graph.edge_sets.items()} == signature.edge_feature_sizes
         assert graph.node_features.shape[1] == signature.node_feature_size
+
+
+def test_log_mass_feature_is_the_logarithm_of_each_dynamic_mass_and_zero_for_static_nodes():
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 1, 2] = 0.45  # the box on the floor, so floor vertices become nodes
+    kg = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2))
+    log = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, log_mass=True))
+    node_object = geometry.vertex_object[kg.node_vertex[kg.node_vertex >= 0]]
+    assert geometry.static[node_object].any()  # static nodes are there to check
+    mass_kg = kg.graph.node_features[: len(node_object), 6].numpy()
+    mass_log = log.graph.node_features[: len(node_object), 6].numpy()
+    np.testing.assert_array_equal(mass_kg, np.array([0.0, 1.0, 2.0], np.float32)[node_object])
+    np.testing.assert_allclose(mass_log, np.log([1.0, 1.0, 2.0])[node_object], atol=1e-7)
+    # everything else is the same graph
+    others = [c for c in range(kg.graph.node_features.shape[1]) if c != 6]
+    torch.testing.assert_close(kg.graph.node_features[:, others], log.graph.node_features[:, others])
+
+
+def test_a_model_config_without_log_mass_reads_as_mass_in_kg():
+    import json
+
+    from fignetctl.core.model.simulator import SimulatorConfig
+
+    config = SimulatorConfig(graph=GraphConfig(0.2, log_mass=True))
+    assert SimulatorConfig.from_json(config.to_json()).graph.log_mass
+    values = json.loads(config.to_json())
+    del values["graph"]["log_mass"]
+    assert SimulatorConfig.from_json(json.dumps(values)).graph.log_mass is False

@@ -28,7 +28,7 @@ FILE = click.Path(dir_okay=False)
 def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings):
     """Train a learned simulator on DATASET (a trajectory file from make-dataset).
 
-    Adam with the learning rate decaying exponentially (--learning-rate, 1e-3 -> 1e-4) over --steps, noise on
+    Adam with the learning rate decaying exponentially (--learning-rate, 3e-4 -> 3e-5) over --steps, noise on
     the input history, MSE (or --loss huber) on normalized accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it with the same
     weights an uninterrupted run would reach. Runs data-parallel under torchrun (see docs/simulator.md).

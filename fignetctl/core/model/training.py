@@ -393,7 +393,7 @@ def _load_weights(simulator, path) -> None:
         feature = "log" if source.config.graph.log_mass else "kg"
         raise FignetError(
             f"{path}: it reads mass as {feature}, so its weights and statistics fit that feature; "
-            f"give --mass-feature {feature}"
+            f"give the same `mass_feature` ({feature})"
         )
     try:
         simulator.load_state_dict(source.state_dict())

@@ -217,7 +217,7 @@ def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
     with pytest.raises(FignetError, match="network differs"):
         make_trainer(box_file, other, _config(), init_from=tmp_path / "first.pt")
     log_mass = dataclasses.replace(TINY, graph=GraphConfig(0.1, False, log_mass=True))
-    with pytest.raises(FignetError, match="--mass-feature kg"):
+    with pytest.raises(FignetError, match=r"`mass_feature` \(kg\)"):
         make_trainer(box_file, log_mass, _config(), init_from=tmp_path / "first.pt")
 
 

@@ -90,7 +90,7 @@ def test_train_mass_feature_option_reaches_the_model_file(trained, tmp_path):
     assert result.exit_code == 0, result.output
     assert load_checkpoint(out).config.graph.log_mass is True
     result = CliRunner().invoke(cli, [*args[:4], "--init-from", str(model), "--overwrite", *args[4:]])
-    assert result.exit_code == 1 and "`mass_feature` (kg)" in result.output
+    assert result.exit_code == 1 and "give the same --mass-feature (kg)" in result.output
     assert "Traceback" not in result.output
 
 

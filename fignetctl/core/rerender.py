@@ -211,14 +211,14 @@ def render_rays(model, origins, directions, warp=None, box=None, chunk: int = 16
     parts = []
     with torch.no_grad():
         for o, d in zip(o_all.split(chunk), d_all.split(chunk)):
-            samples = sample_along_rays(o, d, low, high, model.step_length)
+            samples = sample_along_rays(o, d, low, high, model.step_length, near=model.config.near)
             bend = None if warp is None else _point_warp(warp, d, samples.valid)
             rgb, depth, opacity, _ = render_samples(
                 model.field,
                 model.occupancy,
                 samples,
                 d,
-                model.background,
+                model.background(d),
                 bend,
                 model.config.weight_threshold,
             )

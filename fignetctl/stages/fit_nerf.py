@@ -32,6 +32,20 @@ class Settings:
     rays_per_batch: int | None = setting(
         None, "Rays per optimiser step.  [default: the preset's]", low=1, high=2**20
     )
+    background: str | None = setting(
+        None,
+        "What rays see past the scene box: environment (a learned colour per direction, for walls "
+        "or sky beyond the box), learned (one colour), white or black.  [default: the preset's]",
+        choices=("environment", "learned", "white", "black"),
+    )
+    near: float | None = setting(
+        None,
+        "Rays start this fraction of the cameras' distance to what they look at from their camera, "
+        "so no camera hides fog right in front of itself (0.2 suits a capture in a room).  "
+        "[default: the preset's, 0]",
+        low=0,
+        high=0.9,
+    )
     region: str = setting(
         "auto",
         "Where to fit finely: scene (one grid over the scene box), prompts (around the objects of "
@@ -107,6 +121,8 @@ def run(
         max_image_side=settings.max_image_side,
         holdout_every=settings.holdout_every,
         rays_per_batch=settings.rays_per_batch,
+        background=settings.background,
+        near_fraction=settings.near,
         seed=settings.seed,
     )
     data_hash = inputs_hash(images_dir, cameras)

@@ -289,3 +289,85 @@ def test_diffuse_growing_colour_grid_with_termination_resumes_and_round_trips(sc
     loaded = load_nerf(tmp_path / "nerf.pt")
     camera = (cameras.K[0], cameras.c2w[0], cameras.width, cameras.height)
     assert np.allclose(loaded.render(camera).rgb, resumed.model.render(camera).rgb, atol=1e-5)
+
+
+# -- an environment map behind the scene box -----------------------------------------------------
+
+
+def environment_model(rows=8):
+    model = NerfModel(
+        dataclasses.replace(TINY, background="environment", environment_resolution=rows), BOUNDS
+    )
+    # logits linear in the map's coordinates, which bilinear lookup reproduces exactly
+    column = torch.linspace(-1.0, 1.0, 2 * rows).view(1, -1)  # azimuth / π
+    row = torch.linspace(1.0, -1.0, rows).view(-1, 1)  # elevation / (π/2), the top row looks up
+    with torch.no_grad():
+        model.background_logit.copy_(
+            torch.stack([2.0 * row + 0 * column, 1.5 * column + 0 * row, -row + 0 * column])[None]
+        )
+    return model
+
+
+def test_environment_background_is_looked_up_by_direction():
+    model = environment_model()
+    directions = torch.randn(200, 3, generator=torch.Generator().manual_seed(0)) * torch.rand(200, 1) * 3
+    unit = directions / directions.norm(dim=-1, keepdim=True)
+    elevation = torch.asin(unit[:, 2]) / (math.pi / 2)
+    azimuth = torch.atan2(unit[:, 1], unit[:, 0]) / math.pi
+    expected = torch.sigmoid(torch.stack([2.0 * elevation, 1.5 * azimuth, -elevation], dim=-1))
+    assert model.background(directions).detach().numpy() == pytest.approx(expected.numpy(), abs=1e-5)
+    up, down = model.background(torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -2.0]])).detach()
+    assert up[0] > 0.85 and down[0] < 0.15  # sigmoid(±2)
+
+
+def test_environment_background_shows_where_rays_leave_the_box_and_round_trips(tmp_path):
+    model = environment_model()
+    with torch.no_grad():
+        model.field.density_grid.fill_(-30.0)  # an empty box: every ray sees the map
+    camera = (*orbit(1), 32, 24)
+    camera = (camera[0][0], camera[1][0], 32, 24)
+    rendering = model.render(camera)
+    _, directions = pixel_rays(camera[0], camera[1], 32, 24)
+    expected = model.background(torch.as_tensor(directions.reshape(-1, 3), dtype=torch.float32))
+    assert rendering.rgb.reshape(-1, 3) == pytest.approx(expected.detach().numpy(), abs=1e-3)
+    assert rendering.rgb.reshape(-1, 3).std(axis=0).max() > 0.01  # it varies across the image
+    save_nerf(tmp_path / "nerf.pt", model)
+    assert np.allclose(load_nerf(tmp_path / "nerf.pt").render(camera).rgb, rendering.rgb)
+
+
+def test_training_fits_the_environment_map(scene):
+    images, _, cameras = scene
+    config = dataclasses.replace(TINY, background="environment", environment_resolution=4)
+    trainer = make_trainer(images, cameras, config)
+    trainer.run()
+    # the scene's background is black: the map darkens from its initial grey
+    assert torch.sigmoid(trainer.model.background_logit).mean() < 0.4
+    losses = [h["loss"] for h in trainer.history]
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:3])
+
+
+def test_rays_start_at_the_near_distance_from_their_camera():
+    origins = torch.tensor([[0.0, 0.0, -3.0], [0.0, 0.0, -0.2]])  # outside, and inside, the box
+    directions = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+    low, high = torch.tensor([-1.0] * 3), torch.tensor([1.0] * 3)
+    samples = sample_along_rays(origins, directions, low, high, 1e-2, near=0.5)
+    first = samples.points[:, 0, 2]
+    assert first[0].item() == pytest.approx(-1.0 + 0.005, abs=1e-6)  # the box is farther than `near`
+    assert first[1].item() == pytest.approx(-0.2 + 0.5 + 0.005, abs=1e-6)  # `near` is in world units
+    # a box closer than `near` to a camera inside the field is not seen by it
+    _, _, opacity, _ = render_samples(ConstantBox(1e5, half=0.25), None, samples, directions, torch.zeros(3))
+    assert opacity[0].item() == pytest.approx(1.0) and opacity[1].item() == 0.0
+
+
+def test_a_fit_sets_near_from_the_cameras_distance(scene):
+    images, _, cameras = scene
+    from fignetctl.core.nerf.rays import look_at_point
+
+    c2w = cameras.c2w
+    reach = np.median(np.linalg.norm(c2w[:, :3, 3] - look_at_point(c2w), axis=1))
+    trainer = make_trainer(images, cameras, dataclasses.replace(TINY, near_fraction=0.25, steps=1))
+    assert (
+        trainer.config.near == pytest.approx(0.25 * reach)
+        and trainer.model.config.near == trainer.config.near
+    )
+    assert make_trainer(images, cameras, dataclasses.replace(TINY, steps=1)).config.near == 0.0

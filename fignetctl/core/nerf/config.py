@@ -56,7 +56,17 @@ class NerfConfig:
     tv_weight: float = 0.0
     """Weight of a total-variation penalty on the density grid (0: off)."""
     background: str = "learned"
-    """Colour behind the scene: 'learned' (one RGB), 'white' or 'black'."""
+    """Colour behind the scene: 'learned' (one RGB), 'environment' (a learned RGB per direction:
+    what lies beyond the scene box, such as a room's walls), 'white' or 'black'."""
+    environment_resolution: int = 32
+    """With background 'environment': rows of its equirectangular map (elevation; twice as many
+    columns of azimuth)."""
+    near_fraction: float = 0.0
+    """Rays start at `near` from their camera, set at the start of a fit to this fraction of the
+    cameras' median distance to the point they look at, so no camera can explain its own
+    image with fog right in front of it (0: rays start where they enter the scene box)."""
+    near: float = 0.0
+    """That distance in world units (the fit sets it from `near_fraction`)."""
     bounds_margin: float = 0.1
     """The scene box is the sparse points' 1-99 % box grown on each side by this fraction of its longest side."""
     background_fraction: float = 0.5

@@ -6,6 +6,7 @@ import typing
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
@@ -14,7 +15,13 @@ from fignetctl.core.nerf.renderer import RegionSteps, render_samples, sample_alo
 from fignetctl.core.pinhole import pixel_rays
 from fignetctl.errors import FignetError
 
-BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0), "learned": (0.5, 0.5, 0.5)}
+BACKGROUNDS = {
+    "white": (1.0, 1.0, 1.0),
+    "black": (0.0, 0.0, 0.0),
+    "learned": (0.5, 0.5, 0.5),
+    "environment": (0.5, 0.5, 0.5),
+}
+LEARNED_BACKGROUNDS = ("learned", "environment")
 
 
 class Rendering(typing.NamedTuple):
@@ -42,10 +49,11 @@ class NerfModel(nn.Module):
             region,
             self.field.region_density_grid.shape[2:] if region is not None else None,
         )
-        colour = torch.tensor(BACKGROUNDS[config.background])
-        self.background_logit = nn.Parameter(
-            torch.logit(colour.clamp(1e-3, 1 - 1e-3)), requires_grad=config.background == "learned"
-        )
+        logit = torch.logit(torch.tensor(BACKGROUNDS[config.background]).clamp(1e-3, 1 - 1e-3))
+        if config.background == "environment":
+            rows = max(2, int(config.environment_resolution))
+            logit = logit.view(1, 3, 1, 1).expand(1, 3, rows, 2 * rows).contiguous()
+        self.background_logit = nn.Parameter(logit, requires_grad=config.background in LEARNED_BACKGROUNDS)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -64,9 +72,21 @@ class NerfModel(nn.Module):
         """Edge of the finest density-grid voxel (the region's when there is one), world units."""
         return self.field.finest_voxel_size
 
-    @property
-    def background(self):
-        """(3,) RGB behind the scene."""
+    def background(self, directions):
+        """RGB behind the scene seen along `directions` (R, 3): (3,), or (R, 3) with an
+        environment map (equirectangular in the world frame, z up)."""
+        if self.config.background == "environment":
+            unit = directions / directions.norm(dim=-1, keepdim=True).clamp(min=1e-12)
+            azimuth = torch.atan2(unit[:, 1], unit[:, 0]) / torch.pi
+            elevation = torch.asin(unit[:, 2].clamp(-1.0, 1.0)) / (torch.pi / 2)
+            where = torch.stack([azimuth, -elevation], dim=-1).view(1, 1, -1, 2)
+            logit = F.grid_sample(
+                self.background_logit,
+                where.to(self.background_logit.dtype),
+                padding_mode="border",
+                align_corners=True,
+            )
+            return torch.sigmoid(logit.view(3, -1).t())
         if self.config.background == "learned":
             return torch.sigmoid(self.background_logit)
         return torch.tensor(BACKGROUNDS[self.config.background], device=self.background_logit.device)
@@ -139,14 +159,16 @@ class NerfModel(nn.Module):
             ]
             return {key: torch.cat([p[key] for p in parts]) for key in parts[0]}
         low, high = self.field.bounds[0], self.field.bounds[1]
-        samples = sample_along_rays(origins, directions, low, high, self.step_length, jitter)
+        samples = sample_along_rays(
+            origins, directions, low, high, self.step_length, jitter, self.config.near
+        )
         occupancy = self.occupancy if skip_empty else None
         rgb, depth, opacity, _ = render_samples(
             self.field,
             occupancy,
             samples,
             directions,
-            self.background,
+            self.background(directions),
             warp,
             self.config.weight_threshold if weight_threshold is None else weight_threshold,
             transmittance_threshold,

@@ -40,6 +40,12 @@ def look_at_point(c2w) -> np.ndarray:
     return np.linalg.solve(lhs, rhs)
 
 
+def camera_reach(c2w) -> float:
+    """The cameras' median distance to the point they look at (look_at_point)."""
+    c2w = np.asarray(c2w, np.float64)
+    return float(np.median(np.linalg.norm(c2w[:, :3, 3] - look_at_point(c2w), axis=1)))
+
+
 def scene_bounds(points, c2w, margin: float = 0.1):
     """Axis-aligned scene box (2, 3): from the sparse points, else from the cameras.
 
@@ -61,7 +67,7 @@ def scene_bounds(points, c2w, margin: float = 0.1):
         median = np.median(points, axis=0)
         # ... the cameras' range grown by their median distance to what they look at, so that
         # walls enclosing an orbit stay inside (they fill the top of every view).
-        reach = np.median(np.linalg.norm(centres - look_at_point(c2w), axis=1))
+        reach = camera_reach(c2w)
         surrounded = (centres.min(0) - reach < median) & (median < centres.max(0) + reach)
         low = np.where(surrounded, np.maximum(low, centres.min(0) - reach), low)
         high = np.where(surrounded, np.minimum(high, centres.max(0) + reach), high)
@@ -70,7 +76,7 @@ def scene_bounds(points, c2w, margin: float = 0.1):
         half = 0.5 * size + margin * size.max()
     else:
         centre = look_at_point(c2w)
-        distance = np.median(np.linalg.norm(c2w[:, :3, 3] - centre, axis=1))
+        distance = camera_reach(c2w)
         half = np.full(3, 0.5 * distance)
     bounds = np.stack([centre - half, centre + half])
     if not np.isfinite(bounds).all() or (bounds[1] - bounds[0]).max() <= 0:

@@ -21,7 +21,7 @@ from fignetctl.core.nerf.data import load_views, training_rays
 from fignetctl.core.nerf.evaluation import evaluate_views, psnr
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
-from fignetctl.core.nerf.rays import scene_bounds
+from fignetctl.core.nerf.rays import camera_reach, scene_bounds
 from fignetctl.core.nerf.region import RegionRequest, check_seen, resolve_region
 from fignetctl.errors import FignetError
 
@@ -42,7 +42,7 @@ def make_optimizer(model: NerfModel, config: NerfConfig):
                 "base_lr": config.learning_rate_mlp,
             }
         )
-    if config.background == "learned":
+    if model.background_logit.requires_grad:
         groups.append(
             {
                 "params": [model.background_logit],
@@ -191,6 +191,8 @@ def make_trainer(
         return trainer
     views = load_views(image_dir, cameras, config.max_image_side)
     bounds = scene_bounds(cameras.points, cameras.c2w, config.bounds_margin)
+    if config.near_fraction > 0:
+        config = dataclasses.replace(config, near=config.near_fraction * camera_reach(cameras.c2w))
     if isinstance(region, RegionRequest):
         region = resolve_region(region, cameras, bounds)
     if region is not None:

@@ -24,6 +24,7 @@ truth:
     nice -n 10 .venv/bin/python benchmarks/bench_foreign_capture.py                # ~1 h on 2 cores
     .venv/bin/python benchmarks/bench_foreign_capture.py --work /tmp/fc --reuse    # reuse what is done
     .venv/bin/python benchmarks/bench_foreign_capture.py --steps 300               # a shorter NeRF
+    .venv/bin/python benchmarks/bench_foreign_capture.py --regions scene --nerf-flags "--background environment --near 0.2"
 
 Writes benchmarks/results/foreign-capture.json (or --out) and prints a table.
 """
@@ -186,6 +187,7 @@ def fit(capture, cameras, work, region, args, log) -> dict:
             extra += ["--prompts", capture / "prompts.json"]
     if args.steps:
         extra += ["--steps", args.steps]
+    extra += shlex.split(args.nerf_flags)
     if args.reuse and output.exists() and summary_path.exists() and fitted_on(summary_path, cameras):
         log(f"reusing {output}")
         entry = {"command": "(reused)", "rc": 0}
@@ -303,6 +305,9 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--preset", default="fast")
     parser.add_argument("--steps", type=int, default=None)
+    parser.add_argument(
+        "--nerf-flags", default="", help="more fit-nerf flags, e.g. '--background environment --near 0.2'"
+    )
     parser.add_argument("--device", default="cpu")
     parser.add_argument(
         "--regions", nargs="*", default=None, help="fit-nerf --region values (default: scene prompts)"

@@ -127,8 +127,8 @@ def prompted_view(index, cameras, model, depth_images=None, image=None) -> View:
     name = str(cameras.image_names[index])
     if depth_images is not None:
         return View(name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image)
-    rendering = model.render(cameras, index)
-    depth = np.where(rendering.opacity > 0.5, rendering.depth / np.maximum(rendering.opacity, 1e-6), 0.0)
+    rendering = model.render(cameras, index)  # its depth is already Σ w t / Σ w
+    depth = np.where(rendering.opacity > 0.5, rendering.depth, 0.0)
     return View(name, cameras.K[index], cameras.c2w[index], depth, rendering.opacity, image)
 
 

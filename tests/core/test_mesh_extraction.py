@@ -716,3 +716,31 @@ def test_closing_fills_narrow_tunnels_and_bubbles_but_not_a_wide_hole():
     assert euler_number(np.pad(values > 50.0, 1), connectivity=1) == 1 - 2 + 1  # two tunnels, a bubble
     assert euler_number(np.pad(solid, 1), connectivity=1) == 1 - 1  # one tunnel: the wide hole
     assert set(np.unique(result[solid & (values <= 50.0)])) == {100.0}
+
+
+def test_a_prompted_views_depth_is_the_rendered_expected_depth():
+    """Where a ray is partly transparent its depth is Σ w t / Σ w, not that divided again by the
+    opacity (which pushed the masks' depth behind the surface and split them)."""
+    import math
+
+    import torch
+
+    from fignetctl.core.cameras import Cameras
+    from fignetctl.core.nerf.model import NerfModel
+    from fignetctl.core.object_extraction import prompted_view
+    from fignetctl.core.pinhole import look_at
+    from tests.core.test_nerf import BOUNDS, TINY
+
+    sigma = 0.8  # through the box's chord of 2: opacity 1 − e^{−1.6} = 0.80
+    model = NerfModel(TINY, BOUNDS, density_resolution=TINY.grid_resolution)
+    with torch.no_grad():
+        scaled = sigma * model.field.reference_voxel
+        model.field.density_grid.fill_(math.log(math.expm1(scaled)) - model.field.density_shift)
+    model.refresh_occupancy()
+    K = np.array([[30.0, 0, 15.5], [0, 30.0, 11.5], [0, 0, 1]])  # the centre ray between pixels 15, 16
+    cameras = Cameras(np.array(["a.png"]), K[None], look_at((0.0, 0.0, -3.0), (0.0, 0.0, 0.0))[None], 32, 24)
+    view = prompted_view(0, cameras, model)
+    chord = 2.0  # entering at z-depth 2, leaving at 4
+    expected = 2.0 + 1 / sigma - chord * math.exp(-sigma * chord) / (1 - math.exp(-sigma * chord))
+    assert view.opacity[11:13, 15:17] == pytest.approx(1 - math.exp(-sigma * chord), abs=0.01)
+    assert view.depth[11:13, 15:17] == pytest.approx(expected, abs=0.02)

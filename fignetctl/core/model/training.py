@@ -387,7 +387,8 @@ def make_trainer(
 
 def _load_weights(simulator, path) -> None:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
-    error when its network differs (another architecture or size)."""
+    error when its network differs (another architecture or size) or it reads mass with the
+    other feature (kg or log)."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"

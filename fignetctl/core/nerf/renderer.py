@@ -46,10 +46,9 @@ class RegionSteps(float):
 def sample_along_rays(origins, directions, low, high, step_length: float, jitter=None, near: float = 0.0):
     """Samples every `step_length` (world units) inside the box and at least `near` (world
     units) from the origin; `jitter` (R,) in [0, 1) offsets the first sample (training), else
-    samples start half a step in. With a
-    `RegionSteps`, samples inside its region are at most `fine` apart and those outside at
-    most `step_length` apart, each with the length of ray it stands for as its step ((R, S)
-    `step`; they add up to the ray's chord through the box)."""
+    samples start half a step in. With a `RegionSteps`, samples inside its region are at most
+    `fine` apart and those outside at most `step_length` apart, each with the length of ray it
+    stands for as its step ((R, S) `step`; they add up to the ray's chord through the box)."""
     near_box, far = ray_box_intersection(origins, directions, low, high)
     norms = directions.norm(dim=-1).clamp(min=1e-12)
     near = torch.maximum(near_box, near / norms) if near > 0 else near_box

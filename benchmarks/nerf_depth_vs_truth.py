@@ -26,14 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_foreign_capture import umeyama
 
 from fignetctl.core.nerf.io import load_nerf
-
-
-def surface_points(K, c2w, depth):
-    """World points (H, W, 3) of a z-depth image seen by an OpenCV camera (pixel centres)."""
-    height, width = depth.shape
-    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
-    camera = np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], -1)
-    return camera @ c2w[:3, :3].T + c2w[:3, 3]
+from fignetctl.core.pinhole import camera_frame_points
 
 
 def depth_errors(nerf_path, cameras_path, truth_cameras, truth_depth, box):
@@ -44,10 +37,9 @@ def depth_errors(nerf_path, cameras_path, truth_cameras, truth_depth, box):
     errors, per_view = [], {}
     for view in model.inputs["held_out_views"]:
         depth = truth_depth[view]
-        points = (
-            scale * surface_points(truth_cameras["K"][view], truth_cameras["c2w"][view], depth) @ rotation.T
-        )
-        points = points + shift
+        c2w = truth_cameras["c2w"][view]
+        world = camera_frame_points(depth, truth_cameras["K"][view]) @ c2w[:3, :3].T + c2w[:3, 3]
+        points = scale * world @ rotation.T + shift
         inside = np.isfinite(depth) & (depth > 0) & np.all((points >= box[0]) & (points <= box[1]), -1)
         rendering = model.render((estimated["K"][view], estimated["c2w"][view], width, height))
         error = np.abs(rendering.depth / scale - depth)[inside]

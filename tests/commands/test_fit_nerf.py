@@ -85,18 +85,23 @@ def fit(images, cameras, output, *extra):
     )
 
 
-def test_background_and_near_reach_the_fit_and_a_resumed_run_keeps_them(fitted, tmp_path):
+def test_background_near_and_distortion_reach_the_fit_and_a_resumed_run_keeps_them(fitted, tmp_path):
     _, images, cameras, _, _ = fitted
     nerf = tmp_path / "nerf.pt"
-    result = fit(images, cameras, nerf, "--background", "environment", "--near", "0.2")
+    result = fit(
+        images, cameras, nerf, "--background", "environment", "--near", "0.2", "--distortion", "0.03"
+    )
     assert result.exit_code == 0, result.output
     config = load_nerf(nerf).config
     assert config.background == "environment" and config.near_fraction == 0.2 and config.near > 0
+    assert config.distortion_weight == 0.03
     resumed = fit(images, cameras, nerf, "--resume", "--steps", "4")
     assert resumed.exit_code == 0, resumed.output
-    assert load_nerf(nerf).config.near == config.near and load_nerf(nerf).config.background == "environment"
-    bad = fit(images, cameras, tmp_path / "other.pt", "--near", "2")
-    assert bad.exit_code == 2 and "--near" in bad.output
+    again = load_nerf(nerf).config
+    assert (again.near, again.background, again.distortion_weight) == (config.near, "environment", 0.03)
+    for flag, value in (("--near", "2"), ("--distortion", "-1")):
+        bad = fit(images, cameras, tmp_path / "other.pt", flag, value)
+        assert bad.exit_code == 2 and flag in bad.output
 
 
 def test_existing_output_needs_overwrite_and_resume_continues(fitted):

@@ -13,7 +13,7 @@ from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
 from fignetctl.core.nerf.rays import scene_bounds
-from fignetctl.core.nerf.renderer import render_samples, sample_along_rays
+from fignetctl.core.nerf.renderer import distortion, render_samples, sample_along_rays
 from fignetctl.core.nerf.training import make_trainer
 from fignetctl.core.pinhole import look_at, pixel_rays
 from fignetctl.errors import FignetError, FormatError
@@ -371,3 +371,54 @@ def test_a_fit_sets_near_from_the_cameras_distance(scene):
         and trainer.model.config.near == trainer.config.near
     )
     assert make_trainer(images, cameras, dataclasses.replace(TINY, steps=1)).config.near == 0.0
+
+
+def test_distortion_equals_its_double_sum_and_prefers_one_surface():
+    generator = torch.Generator().manual_seed(0)
+    weights = torch.rand(6, 9, generator=generator) / 9
+    t = torch.sort(torch.rand(6, 9, generator=generator) * 3, dim=1).values
+    step = torch.rand(6, 9, generator=generator) * 0.1
+    fast = distortion(weights, t, step, scale=2.0)
+    for row in range(6):
+        m, w = t[row] / 2.0, weights[row]
+        brute = (w[:, None] * w[None, :] * (m[:, None] - m[None, :]).abs()).sum() + (
+            w**2 * step[row] / 2.0
+        ).sum() / 3
+        assert fast[row].item() == pytest.approx(brute.item(), rel=1e-5)
+    # the same opacity on one sample, on two neighbours, and split between surfaces 1 apart
+    t = torch.arange(10.0)[None].expand(3, -1) * 0.1
+    weights = torch.zeros(3, 10)
+    weights[0, 2], weights[1, 2:4], weights[2, [2, 9]] = 0.8, 0.4, 0.4
+    one, near, split = distortion(weights, t, torch.full((3,), 0.1)).tolist()
+    assert one < near < split
+    assert split == pytest.approx(2 * 0.4 * 0.4 * 0.7 + 2 * 0.4**2 * 0.1 / 3)
+
+
+def test_render_rays_reports_distortion_in_scene_box_units():
+    """A ray through a constant-density box: distortion from the model's own samples equals the
+    double sum over them, with distances divided by the scene box's longest side (2)."""
+    model = solid_box_model(dataclasses.replace(TINY, background="black"), raw=0.0)
+    origins, directions = torch.tensor([[0.0, 0.0, -3.0]]), torch.tensor([[0.0, 0.0, 2.0]])
+    out = model.render_rays(origins, directions, skip_empty=False, with_distortion=True)
+    samples = sample_along_rays(
+        origins, directions, model.field.bounds[0], model.field.bounds[1], model.step_length
+    )
+    _, _, _, weights = render_samples(model.field, None, samples, directions, torch.zeros(3))
+    m, w = samples.t[0] * 2.0 / 2.0, weights[0]
+    brute = (w[:, None] * w[None, :] * (m[:, None] - m[None, :]).abs()).sum() + (
+        w**2 * samples.step[0] / 2.0
+    ).sum() / 3
+    assert out["distortion"].item() == pytest.approx(brute.item(), rel=1e-4) and brute > 0
+    assert "distortion" not in model.render_rays(origins, directions)
+
+
+def test_training_adds_the_weighted_distortion_to_the_loss(scene):
+    images, _, cameras = scene
+    excess = {}
+    for weight in (0.0, 10.0):
+        trainer = make_trainer(images, cameras, dataclasses.replace(TINY, steps=1, distortion_weight=weight))
+        trainer.run()
+        record = trainer.history[0]
+        excess[weight] = record["loss"] - 10 ** (-record["psnr"] / 10)  # loss beyond the colour MSE
+    assert excess[0.0] == pytest.approx(0.0, abs=1e-9)
+    assert excess[10.0] > 1e-6, excess

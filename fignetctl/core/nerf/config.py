@@ -55,6 +55,10 @@ class NerfConfig:
     """Both rates decay exponentially to this fraction over `steps`."""
     tv_weight: float = 0.0
     """Weight of a total-variation penalty on the density grid (0: off)."""
+    distortion_weight: float = 0.0
+    """Weight of the distortion loss (Mip-NeRF 360), which gathers each ray's weight onto one
+    surface instead of fog spread along it or split between a surface and what lies behind it
+    (0: off)."""
     background: str = "learned"
     """Colour behind the scene: 'learned' (one RGB), 'environment' (a learned RGB per direction:
     what lies beyond the scene box, such as a room's walls), 'white' or 'black'."""

@@ -11,7 +11,7 @@ from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.field import GridField, OccupancyGrid
-from fignetctl.core.nerf.renderer import RegionSteps, render_samples, sample_along_rays
+from fignetctl.core.nerf.renderer import RegionSteps, distortion, render_samples, sample_along_rays
 from fignetctl.core.pinhole import pixel_rays
 from fignetctl.errors import FignetError
 
@@ -129,6 +129,7 @@ class NerfModel(nn.Module):
         skip_empty=True,
         weight_threshold=None,
         transmittance_threshold=0.0,
+        with_distortion=False,
     ):
         """Volume-render rays (R, 3) + (R, 3) (torch, any direction length).
 
@@ -138,6 +139,8 @@ class NerfModel(nn.Module):
         camera rays from `render`), distance (R,) = depth · |d|, opacity (R,). Samples whose
         compositing weight is below `weight_threshold` (default: the config's) get no colour;
         with `transmittance_threshold` > 0, samples behind which less light is left are dropped.
+        `with_distortion`: also distortion (R,), renderer.distortion of each ray's weights, its
+        distances in units of the scene box's longest side (what training penalises).
         """
         if chunk is not None and len(origins) > chunk:
             parts = [
@@ -150,6 +153,7 @@ class NerfModel(nn.Module):
                     skip_empty,
                     weight_threshold,
                     transmittance_threshold,
+                    with_distortion,
                 )
                 for o, d, j in zip(
                     origins.split(chunk),
@@ -163,7 +167,7 @@ class NerfModel(nn.Module):
             origins, directions, low, high, self.step_length, jitter, self.config.near
         )
         occupancy = self.occupancy if skip_empty else None
-        rgb, depth, opacity, _ = render_samples(
+        rgb, depth, opacity, weights = render_samples(
             self.field,
             occupancy,
             samples,
@@ -173,7 +177,12 @@ class NerfModel(nn.Module):
             self.config.weight_threshold if weight_threshold is None else weight_threshold,
             transmittance_threshold,
         )
-        return {"rgb": rgb, "depth": depth, "distance": depth * directions.norm(dim=-1), "opacity": opacity}
+        norms = directions.norm(dim=-1)
+        out = {"rgb": rgb, "depth": depth, "distance": depth * norms, "opacity": opacity}
+        if with_distortion:
+            scale = float((high - low).max())
+            out["distortion"] = distortion(weights, samples.t * norms[:, None], samples.step, scale)
+        return out
 
     @torch.no_grad()
     def render(self, camera, index: int = 0, warp=None, chunk: int = 16384) -> Rendering:

@@ -139,6 +139,25 @@ def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
     return rgb, depth, opacity, weights
 
 
+def distortion(weights, t, step, scale: float = 1.0):
+    """The distortion loss of Mip-NeRF 360 (Barron et al. 2022, eq. 15) per ray (R,): small
+    when a ray's weight sits on one short stretch of it (one surface), large when it is spread
+    along the ray or split between surfaces far apart. Sample i stands for the interval of length
+    `step` (world units; (R,) or (R, S)) centred at ray parameter t (R, S), here in world
+    distance t·|d| passed in as `t`; distances are divided by `scale`:
+
+        Σᵢ Σⱼ wᵢ wⱼ |mᵢ − mⱼ| + ⅓ Σᵢ wᵢ² δᵢ
+
+    The double sum in O(S) with the samples in order along each ray (as sample_along_rays
+    gives them; padding has weight 0): 2 Σᵢ wᵢ (mᵢ Σ_{j<i} wⱼ − Σ_{j<i} wⱼ mⱼ)."""
+    middle = t / scale
+    width = _per_sample(step).expand_as(t) / scale
+    before = torch.cumsum(weights, dim=-1) - weights
+    moment_before = torch.cumsum(weights * middle, dim=-1) - weights * middle
+    between = 2.0 * (weights * (middle * before - moment_before)).sum(dim=-1)
+    return between + (weights.pow(2) * width).sum(dim=-1) / 3.0
+
+
 def render_samples(
     field,
     occupancy,

@@ -2,7 +2,7 @@
 
 Each step draws `rays_per_batch` pixels from every training view (one torch Generator, whose
 state is saved), jitters each ray's first sample, renders, and minimises the colour MSE (plus
-an optional total-variation term on the density grid) with Adam. The density grid grows at
+optional terms: total variation of the density grid, the rays' distortion) with Adam. The density grid grows at
 `upsample_steps` (the optimiser restarts then, as in DVGO) and the occupancy grid is refreshed
 every `occupancy_every` steps after `occupancy_warmup`; both are functions of the step, so a
 run resumed from a checkpoint repeats what an uninterrupted run does.
@@ -96,13 +96,14 @@ class NerfTrainer:
             jitter=jitter,
             weight_threshold=None if warm else 0.0,
             transmittance_threshold=self.config.transmittance_threshold if warm else 0.0,
+            with_distortion=self.config.distortion_weight > 0,
         )
         mse = torch.mean((out["rgb"] - self.colours[index]) ** 2)
-        loss = (
-            mse + self.config.tv_weight * self.model.field.total_variation()
-            if self.config.tv_weight > 0
-            else mse
-        )
+        loss = mse
+        if self.config.tv_weight > 0:
+            loss = loss + self.config.tv_weight * self.model.field.total_variation()
+        if self.config.distortion_weight > 0:
+            loss = loss + self.config.distortion_weight * out["distortion"].mean()
         if not torch.isfinite(loss):
             raise FignetError(
                 f"the loss became {float(loss.detach())} at step {self.step + 1}; try a lower learning rate or check the images"

@@ -221,9 +221,13 @@ def test_training_lowers_the_loss(scene):
     assert list(trainer.held_out_views) == [0, 4]
 
 
-def test_resume_continues_exactly(scene, tmp_path):
+@pytest.mark.parametrize("background", ["learned", "black"])
+def test_resume_continues_exactly(scene, tmp_path, background):
+    """Also with a fixed background, where the field can empty its occupancy grid (TINY does, at
+    the first refresh) and a step with no ray in occupied space has nothing to learn: it skips
+    the update instead of failing."""
     images, _, cameras = scene
-    config = dataclasses.replace(TINY, steps=16, occupancy_warmup=4, occupancy_every=3)
+    config = dataclasses.replace(TINY, steps=16, occupancy_warmup=4, occupancy_every=3, background=background)
     straight = make_trainer(images, cameras, config)
     straight.run()
     first = make_trainer(images, cameras, config)

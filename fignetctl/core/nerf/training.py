@@ -109,8 +109,9 @@ class NerfTrainer:
                 f"the loss became {float(loss.detach())} at step {self.step + 1}; try a lower learning rate or check the images"
             )
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimizer.step()
+        if loss.requires_grad:  # else no ray met occupied space and nothing learnable coloured it
+            loss.backward()
+            self.optimizer.step()
         self.step += 1
         self.seconds += time.perf_counter() - started
         record = {

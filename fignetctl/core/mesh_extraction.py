@@ -100,7 +100,7 @@ class ExtractionSettings:
     """A warning names each view and image axis where the mesh's outline is wider or taller than
     the mask (pixel bounding boxes, `outline_extents`) by more than this fraction, or narrower
     or shorter by more than it: the mesh is that much too large or too small there."""
-    max_extent: float = 0.5
+    max_extent: float = 0.3
     """The mesh is refused when, in the median prompted view, its outline's width or height is
     off the mask's by more than this fraction."""
     warn_voxel: float = 0.2

@@ -70,7 +70,7 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     assert volume.settings["threshold"] == summary["threshold"]
     assert volume.settings["threshold_choice"] == choice and volume.settings["auto_threshold"]
     # the size check: the outline's and the mask's pixel boxes per prompted view (a coarse 48-voxel
-    # grid on 160x120 views: within the refusal bound, 50 %, not always within the warning's 10 %)
+    # grid on 160x120 views: each within 50 %, not always within the warning's 10 %)
     extents = summary["outline_extent_px"]
     assert set(extents) == set(summary["mask_iou"]) and volume.settings["outline_extent_px"] == extents
     pairs = [pair for axes in extents.values() for pair in axes.values()]

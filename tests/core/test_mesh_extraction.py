@@ -448,6 +448,13 @@ def test_a_mesh_too_wide_for_its_masks_is_warned_per_view_and_axis_and_a_far_off
     huge.apply_scale(1.8)
     with pytest.raises(FignetError, match="size does not match the masks"):
         mx.check_outline_extents(mx.outline_extents(huge, views), settings)
+    # the refusal bound, 30 % in the median view: 25-29 % small in every view is warned, 35-42 %
+    # large refused (the foreign room's ball on a hollow field came out 35 % short in most views)
+    assert (
+        len(mx.check_outline_extents(mx.outline_extents(box.copy().apply_scale(0.75), views), settings)) == 6
+    )
+    with pytest.raises(FignetError, match="over 30 % in the median view"):
+        mx.check_outline_extents(mx.outline_extents(box.copy().apply_scale(1.35), views), settings)
 
 
 def test_an_outline_cut_by_the_image_border_is_not_compared():

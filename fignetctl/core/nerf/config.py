@@ -117,7 +117,7 @@ class NerfConfig:
 PRESETS = {
     # fast: a diffuse colour grid (no MLP) that grows with the density grid, over a box that
     # takes in the walls; early ray termination in training; the distortion term, which clears
-    # fog (docs/fit-nerf.md: +0.9 dB on the bundled capture and faster, 0.9 cm depth in a room).
+    # fog (docs/fit-nerf.md, "A capture in a room").
     "fast": NerfConfig(
         grid_resolution_initial=64,
         grid_resolution=192,

@@ -143,8 +143,8 @@ def distortion(weights, t, step, scale: float = 1.0):
     """The distortion loss of Mip-NeRF 360 (Barron et al. 2022, eq. 15) per ray (R,): small
     when a ray's weight sits on one short stretch of it (one surface), large when it is spread
     along the ray or split between surfaces far apart. Sample i stands for the interval of length
-    `step` (world units; (R,) or (R, S)) centred at ray parameter t (R, S), here in world
-    distance t·|d| passed in as `t`; distances are divided by `scale`:
+    `step` ((R,) or (R, S)) centred at `t` (R, S), its distance along the ray, both in world
+    units and divided by `scale`:
 
         Σᵢ Σⱼ wᵢ wⱼ |mᵢ − mⱼ| + ⅓ Σᵢ wᵢ² δᵢ
 

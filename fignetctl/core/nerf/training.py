@@ -2,10 +2,10 @@
 
 Each step draws `rays_per_batch` pixels from every training view (one torch Generator, whose
 state is saved), jitters each ray's first sample, renders, and minimises the colour MSE (plus
-optional terms: total variation of the density grid, the rays' distortion) with Adam. The density grid grows at
-`upsample_steps` (the optimiser restarts then, as in DVGO) and the occupancy grid is refreshed
-every `occupancy_every` steps after `occupancy_warmup`; both are functions of the step, so a
-run resumed from a checkpoint repeats what an uninterrupted run does.
+optional terms: total variation of the density grid, the rays' distortion) with Adam. The
+density grid grows at `upsample_steps` (the optimiser restarts then, as in DVGO) and the
+occupancy grid is refreshed every `occupancy_every` steps after `occupancy_warmup`; both are
+functions of the step, so a run resumed from a checkpoint repeats what an uninterrupted run does.
 """
 
 from __future__ import annotations

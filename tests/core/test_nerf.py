@@ -377,6 +377,11 @@ def test_a_fit_sets_near_from_the_cameras_distance(scene):
     assert make_trainer(images, cameras, dataclasses.replace(TINY, steps=1)).config.near == 0.0
 
 
+def double_sum_distortion(w, m, width):
+    """Σᵢ Σⱼ wᵢ wⱼ |mᵢ − mⱼ| + ⅓ Σᵢ wᵢ² δᵢ of one ray, term by term (the reference)."""
+    return (w[:, None] * w[None, :] * (m[:, None] - m[None, :]).abs()).sum() + (w**2 * width).sum() / 3
+
+
 def test_distortion_equals_its_double_sum_and_prefers_one_surface():
     generator = torch.Generator().manual_seed(0)
     weights = torch.rand(6, 9, generator=generator) / 9
@@ -384,10 +389,7 @@ def test_distortion_equals_its_double_sum_and_prefers_one_surface():
     step = torch.rand(6, 9, generator=generator) * 0.1
     fast = distortion(weights, t, step, scale=2.0)
     for row in range(6):
-        m, w = t[row] / 2.0, weights[row]
-        brute = (w[:, None] * w[None, :] * (m[:, None] - m[None, :]).abs()).sum() + (
-            w**2 * step[row] / 2.0
-        ).sum() / 3
+        brute = double_sum_distortion(weights[row], t[row] / 2.0, step[row] / 2.0)
         assert fast[row].item() == pytest.approx(brute.item(), rel=1e-5)
     # the same opacity on one sample, on two neighbours, and split between surfaces 1 apart
     t = torch.arange(10.0)[None].expand(3, -1) * 0.1
@@ -408,10 +410,8 @@ def test_render_rays_reports_distortion_in_scene_box_units():
         origins, directions, model.field.bounds[0], model.field.bounds[1], model.step_length
     )
     _, _, _, weights = render_samples(model.field, None, samples, directions, torch.zeros(3))
-    m, w = samples.t[0] * 2.0 / 2.0, weights[0]
-    brute = (w[:, None] * w[None, :] * (m[:, None] - m[None, :]).abs()).sum() + (
-        w**2 * samples.step[0] / 2.0
-    ).sum() / 3
+    distance = samples.t[0] * 2.0  # ray parameter × |d|
+    brute = double_sum_distortion(weights[0], distance / 2.0, samples.step[0] / 2.0)
     assert out["distortion"].item() == pytest.approx(brute.item(), rel=1e-4) and brute > 0
     assert "distortion" not in model.render_rays(origins, directions)
 

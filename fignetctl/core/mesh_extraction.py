@@ -741,11 +741,10 @@ def object_box_from_views(views, settings: ExtractionSettings):
     return object_box_from_points(points, names, settings)
 
 
-def occupancy_grid(density, box, settings: ExtractionSettings):
-    """(axes, voxel, points (N, 3), occupied (X, Y, Z) bool) of `box` at `hull_resolution`."""
+def hull_grid(density, box, settings: ExtractionSettings):
+    """(axes, voxel, points (N, 3), σ (X, Y, Z)) of `box` at `hull_resolution`."""
     axes, voxel = grid_axes(box[0], box[1], settings.hull_resolution)
-    occupied = sample_density(density, axes) > settings.threshold
-    return axes, voxel, grid_points(axes), occupied
+    return axes, voxel, grid_points(axes), sample_density(density, axes)
 
 
 def consistent_box(density, views, settings: ExtractionSettings):
@@ -753,45 +752,77 @@ def consistent_box(density, views, settings: ExtractionSettings):
     narrowed to their visual hull (`hull_box`), the masks redrawn from it (`hull_masks`), and
     the hull taken again with the new masks. The views' masks are replaced."""
     coarse = object_box_from_views(views, settings)
-    occupancy = occupancy_grid(density, coarse, settings) if settings.hull_resolution > 0 else None
-    hull_masks(density, hull_box(density, coarse, views, settings, occupancy), views, settings)
-    return hull_box(density, coarse, views, settings, occupancy)
+    if settings.hull_resolution <= 0 or len(views) < 2:
+        return coarse
+    grid = hull_grid(density, coarse, settings)
+    box, level = hull_box(density, coarse, views, settings, grid)
+    hull_masks(density, box, views, dataclasses.replace(settings, threshold=level))
+    return hull_box(density, coarse, views, settings, grid)[0]
 
 
-def hull_box(density, box, views, settings: ExtractionSettings, occupancy=None):
-    """V_o refined by all the masks at once (a visual hull).
+HULL_LEVELS = 4
+"""`hull_box` tries the threshold and up to this many levels in all, each half the one before."""
+
+HULL_WHOLE = 0.5
+"""... and takes the first whose largest connected part holds at least this fraction of the
+voxels that pass (the object in one piece)."""
+
+
+def hull_box(density, box, views, settings: ExtractionSettings, grid=None):
+    """(V_o refined by all the masks at once (a visual hull), the density level it was taken at).
 
     Per-view masks err differently: one takes in a piece of the container's wall, another
-    misses a rim. In the masks' box, the voxels whose density is above the threshold and that
+    misses a rim. In the masks' box, the voxels whose density is above the level and that
     project inside every view's mask (grown by `hull_dilation` pixels) hold the object and
     little else; their largest connected part, padded and clipped to `box`, is V_o. Occluded
     space (behind or under the object) passes the test too, which is why the unseen bottom is
     later cut at the support, and why the result is never wider than `box`.
-    Returns `box` unchanged when no voxel passes (or `hull_resolution` is 0).
 
-    occupancy : `occupancy_grid(density, box, settings)` when already sampled
+    The level is the threshold unless the voxels above it fall apart, as a field that holds
+    the object only as a thin, patchy shell gives: then it is halved (`HULL_LEVELS`,
+    `HULL_WHOLE`) until the largest part holds most of them, or the part is a cap of the
+    object, V_o too small, and the support search beside it meets the object's own sides.
+    Returns (`box`, threshold) unchanged when no voxel passes (or `hull_resolution` is 0).
+
+    grid : `hull_grid(density, box, settings)` when already sampled
     """
     from scipy import ndimage
 
     if settings.hull_resolution <= 0 or len(views) < 2:
-        return box
-    axes, voxel, points, occupied = (
-        occupancy if occupancy is not None else occupancy_grid(density, box, settings)
-    )
-    inside = occupied.reshape(-1) & _inside_every_mask(points, views, settings)
-    inside = inside.reshape(occupied.shape)
-    labels, count = ndimage.label(inside)
-    if count == 0:
+        return box, settings.threshold
+    axes, voxel, points, values = grid if grid is not None else hull_grid(density, box, settings)
+    in_masks = _inside_every_mask(points, views, settings).reshape(values.shape)
+    best = None
+    for level in settings.threshold / 2.0 ** np.arange(HULL_LEVELS):
+        inside = in_masks & (values > level)
+        labels, count = ndimage.label(inside)
+        if count == 0:
+            continue
+        sizes = ndimage.sum(inside, labels, index=np.arange(1, count + 1))
+        whole = sizes.max() / sizes.sum()
+        if best is None or whole > best[0]:
+            best = (whole, level, labels == 1 + int(np.argmax(sizes)), count)
+        if whole >= HULL_WHOLE:
+            break
+    if best is None:
         log.warning("no voxel of the masks' box projects into every mask; keeping the masks' box")
-        return box
-    largest = 1 + int(np.argmax(ndimage.sum(inside, labels, index=np.arange(1, count + 1))))
-    cells = np.argwhere(labels == largest)
+        return box, settings.threshold
+    whole, level, part, count = best
+    if level != settings.threshold:
+        log.info(
+            "the object's voxels above density %g fall apart; its box is taken at %g (%d pieces, the "
+            "largest %.0f %%)",
+            settings.threshold,
+            level,
+            count,
+            100 * whole,
+        )
+    cells = np.argwhere(part)
     lower = np.array([axes[i][cells[:, i].min()] for i in range(3)]) - voxel
     upper = np.array([axes[i][cells[:, i].max()] for i in range(3)]) + voxel
     hull = padded_box(np.stack([lower, upper]), settings.padding)
-    return np.stack(
-        [np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])]
-    )  # the hull only ever shrinks V_o
+    # the hull only ever shrinks V_o
+    return np.stack([np.maximum(hull[0], box[0]), np.minimum(hull[1], box[1])]), level
 
 
 HOLE_FRACTION = 0.02
@@ -802,8 +833,8 @@ larger ones are openings through the object (a mug's handle) and stay."""
 def hull_masks(density, box, views, settings: ExtractionSettings):
     """Redraw each prompted view's mask from the object in 3D, so every view agrees.
 
-    The occupied voxels of the object's box (`hull_box`, cut `hull_mask_clearance` above the
-    support) that project inside every mask are splatted into each view; GrabCut then settles the edge from
+    The voxels of the object's box (`hull_box`, cut `hull_mask_clearance` above the support)
+    with density above the threshold (`hull_box`'s level) that project inside every mask are splatted into each view; GrabCut then settles the edge from
     colour, with the splat as probable foreground, its core (where the old mask agreed) as
     certain foreground and a ring around it as probable background. Views without an image
     or without prompts (masks the user gave) keep their masks. Returns the views.
@@ -815,8 +846,8 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
     lower, upper, support = cut_at_support(density, box, settings)
     if support is not None:
         lower[2] = max(lower[2], support + settings.hull_mask_clearance * (upper[2] - support))
-    _, _, points, occupied = occupancy_grid(density, np.stack([lower, upper]), settings)
-    points = points[occupied.reshape(-1)]
+    _, _, points, values = hull_grid(density, np.stack([lower, upper]), settings)
+    points = points[values.reshape(-1) > settings.threshold]
     points = points[_inside_every_mask(points, views, settings)]
     if len(points) == 0:
         return views

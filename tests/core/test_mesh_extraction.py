@@ -188,7 +188,8 @@ def test_the_visual_hull_cuts_what_one_mask_took_too_much():
         views.append(view)
     settings = mx.ExtractionSettings(padding=0.0)
     coarse = np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]])
-    box = mx.hull_box(cube_beside_wall, coarse, views, settings)
+    box, level = mx.hull_box(cube_beside_wall, coarse, views, settings)
+    assert level == settings.threshold  # the cube is whole at the threshold
     voxel = (coarse[1] - coarse[0]).max() / (settings.hull_resolution - 1)
     assert box[1][0] < 0.10  # the wall (x >= 0.10) is out; the floor in the cube's shadow may be in
     assert np.all(box[0] < [-0.05, -0.05, 0.0]) and np.all(box[1] > [0.05, 0.05, 0.1])  # the cube is in
@@ -262,7 +263,7 @@ def test_masks_redrawn_from_the_hull_agree_with_the_object(density):
         views.append(view)
     before = [iou(v.mask, t) for v, t in zip(views, truths)]
     settings = mx.ExtractionSettings()
-    box = mx.hull_box(density, np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]]), views, settings)
+    box, _ = mx.hull_box(density, np.array([[-0.1, -0.15, -0.02], [0.15, 0.15, 0.2]]), views, settings)
     mx.hull_masks(density, box, views, settings)
     after = [iou(v.mask, t) for v, t in zip(views, truths)]
     assert min(before) < 0.8 and min(after) > 0.9, (before, after)
@@ -677,6 +678,49 @@ def test_what_no_view_saw_inside_is_filled():
     # points inside the ball are hidden, points between the cameras and the ball are not
     axes = [np.array([0.0, 0.3]), np.array([0.0]), np.array([0.2])]
     assert mx.hidden(axes, views, 0.01).reshape(-1).tolist() == [True, False]
+
+
+def test_a_patchy_shell_gets_the_whole_objects_box_and_the_support_under_it(monkeypatch):
+    """A field that holds a ball's seen shell in patches (dense spots joined by fainter shell,
+    as a fine NeRF grid fits a textured ball): above the threshold the patches fall apart, and
+    the largest piece alone is not the ball (on the foreign room, a cap of it, whose box was so
+    small that the support search beside it met the ball's own sides). The hull is taken at the
+    level where the shell is one piece: the whole ball's box, and the floor under it."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+
+    centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
+
+    def patchy_shell(points):
+        p = np.asarray(points)
+        offset = p - centre
+        distance = np.linalg.norm(offset, axis=1)
+        band = (distance < radius) & (distance > radius - 0.03) & (p[:, 2] > centre[2] - 0.05)
+        azimuth = np.arctan2(offset[:, 1], offset[:, 0])
+        elevation = np.arcsin(np.clip(offset[:, 2] / np.maximum(distance, 1e-9), -1, 1))
+        spots = np.cos(6 * azimuth) * np.cos(6 * elevation) > 0.3
+        floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.01)
+        return np.where(floor, 3000.0, np.where(band, np.where(spots, 100.0, 20.0), 0.0))
+
+    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    truth.apply_translation(centre)
+    views = []
+    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
+        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
+        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
+        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+        views.append(view)
+    coarse = np.array([[-0.3, -0.3, -0.02], [0.3, 0.3, 0.45]])
+    settings = mx.ExtractionSettings(threshold=50.0, padding=0.0)
+    box, level = mx.hull_box(patchy_shell, coarse, views, settings)
+    assert level == 12.5  # 50 and 25 split into the spots; 12.5 takes the faint shell too
+    np.testing.assert_allclose(box[1, :2] - box[0, :2], 2 * radius, rtol=0.08)
+    assert mx.cut_at_support(patchy_shell, box, settings)[2] == pytest.approx(0.0, abs=0.01)
+    # at the threshold alone, the largest piece is not the ball (here the floor in its shadow)
+    monkeypatch.setattr(mx, "HULL_LEVELS", 1)
+    cap, level = mx.hull_box(patchy_shell, coarse, views, settings)
+    assert level == 50.0 and cap[1, 2] - cap[0, 2] < radius / 2
 
 
 def test_ring_pixels_are_background_where_their_rays_pass_far_from_the_object():

@@ -35,14 +35,16 @@ class Settings:
     background: str | None = setting(
         None,
         "What rays see past the scene box: environment (a learned colour per direction, for walls "
-        "or sky beyond the box), learned (one colour), white or black.  [default: the preset's]",
-        choices=("environment", "learned", "white", "black"),
+        "or sky beyond the box), learned (one colour), white, black, or auto (environment when a "
+        "fifth of the sparse points lie outside the scene box, a capture in a room; else learned).  "
+        "[default: the preset's, auto]",
+        choices=("auto", "environment", "learned", "white", "black"),
     )
     near: float | None = setting(
         None,
         "Rays start this fraction of the cameras' distance to what they look at from their camera, "
-        "so no camera hides fog right in front of itself (0.2 suits a capture in a room).  "
-        "[default: the preset's, 0]",
+        "so no camera hides fog right in front of itself.  [default: the preset's: 0.2 for a capture "
+        "in a room (as --background auto tells it), else 0]",
         low=0,
         high=0.9,
     )
@@ -137,6 +139,7 @@ def run(
     resume_from = path if settings.resume and path.exists() else None
     trainer = make_trainer(images_dir, camera_set, config, device, resume_from, data_hash, region)
     trainer.provenance = stamp(images=images_dir, cameras=cameras)
+    _report_capture(trainer, settings, report or to_stderr)
     with live_recording(settings.rerun_connect, rerun_path or path, report or to_stderr) as live:
         with (progress or no_progress)(
             total=trainer.config.steps, initial=trainer.step, unit="step", desc="fit-nerf"
@@ -157,9 +160,29 @@ def run(
         from fignetctl.core.nerf.visualize import log_fit_to_rerun
 
         log_fit_to_rerun(rerun_path, trainer, renderings)
-    summary = {"output": str(path), **metrics}
+    summary = {
+        "output": str(path),
+        **metrics,
+        "background": trainer.config.background,
+        "near_fraction": trainer.config.near_fraction,
+    }
     write_summary(json_path, summary, trainer.provenance)
     return {**summary, "message": message}
+
+
+def _report_capture(trainer, settings: Settings, report) -> None:
+    """Say so when the preset's 'auto' background and near were set for a capture in a room."""
+    capture, config = trainer.capture, trainer.config
+    chosen = []
+    if settings.background in (None, "auto") and capture is not None and capture.room:
+        chosen.append(f"background {config.background}")
+    if settings.near is None and capture is not None and capture.room:
+        chosen.append(f"near {config.near_fraction:g}")
+    if chosen:
+        report(
+            f"fit-nerf: {100 * capture.outside:.0f} % of the sparse points lie outside the scene box, "
+            f"a capture in a room: {', '.join(chosen)} (--background, --near to choose)"
+        )
 
 
 def _message(metrics) -> str:

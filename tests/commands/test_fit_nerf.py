@@ -104,6 +104,39 @@ def test_background_near_and_distortion_reach_the_fit_and_a_resumed_run_keeps_th
         assert bad.exit_code == 2 and flag in bad.output
 
 
+def test_a_capture_in_a_room_gets_the_environment_and_near_and_says_so(fitted, tmp_path):
+    """The preset's 'auto' background and near: a capture whose sparse points stay in the scene
+    box keeps one learned colour and rays from the box; one with walls beyond the box (a fifth
+    of its points or more outside it) gets the environment map and near 0.2, with a line on
+    stderr; flags given are kept."""
+    _, images, cameras, nerf, result = fitted
+    plain = load_nerf(nerf).config
+    assert (plain.background, plain.near_fraction, plain.near) == ("learned", 0.0, 0.0)
+    assert "room" not in result.stderr
+    room = read_cameras(cameras)
+    angles = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    far = 10 * np.abs(room.c2w[:, :3, 3]).max()
+    walls = np.stack([far * np.cos(angles), far * np.sin(angles), np.zeros(60)], 1)
+    room.points = np.concatenate([room.points, walls])
+    room.point_colors = np.zeros((len(room.points), 3), np.uint8)
+    write_cameras(tmp_path / "room.npz", room)
+    result = fit(images, tmp_path / "room.npz", tmp_path / "room.pt")
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stderr.splitlines() if "room" in line]
+    assert len(lines) == 1 and lines[0].endswith(
+        "% of the sparse points lie outside the scene box, a capture in a room: background "
+        "environment, near 0.2 (--background, --near to choose)"
+    ), result.stderr
+    config = load_nerf(tmp_path / "room.pt").config
+    assert config.background == "environment" and config.near_fraction == 0.2 and config.near > 0
+    chosen = fit(
+        images, tmp_path / "room.npz", tmp_path / "chosen.pt", "--background", "learned", "--near", "0"
+    )
+    assert chosen.exit_code == 0 and "room" not in chosen.stderr, chosen.output
+    config = load_nerf(tmp_path / "chosen.pt").config
+    assert (config.background, config.near_fraction, config.near) == ("learned", 0.0, 0.0)
+
+
 def test_existing_output_needs_overwrite_and_resume_continues(fitted):
     _, images, cameras, nerf, _ = fitted
     result = CliRunner().invoke(

@@ -426,3 +426,23 @@ def test_training_adds_the_weighted_distortion_to_the_loss(scene):
         excess[weight] = record["loss"] - 10 ** (-record["psnr"] / 10)  # loss beyond the colour MSE
     assert excess[0.0] == pytest.approx(0.0, abs=1e-9)
     assert excess[10.0] > 1e-6, excess
+
+
+def test_auto_background_and_near_follow_the_share_of_points_outside_the_box():
+    """`for_capture`: 'auto' and None become the room settings from a fifth of the sparse points
+    outside the scene box on, and the plain ones below it; values set are kept either way."""
+    from fignetctl.core.nerf.config import ROOM_NEAR, ROOM_POINTS, for_capture
+
+    auto = NerfConfig(background="auto", near_fraction=None)
+    bounds = np.array([[-1.0] * 3, [1.0] * 3])
+    for outside in (0, 19, 20, 60):
+        points = np.concatenate([np.zeros((100 - outside, 3)), np.full((outside, 3), 5.0)])
+        config, capture = for_capture(auto, points, bounds)
+        room = outside / 100 >= ROOM_POINTS
+        assert capture.outside == pytest.approx(outside / 100) and capture.room == room
+        assert (config.background, config.near_fraction) == (
+            ("environment", ROOM_NEAR) if room else ("learned", 0.0)
+        )
+        kept, _ = for_capture(NerfConfig(background="white", near_fraction=0.1), points, bounds)
+        assert (kept.background, kept.near_fraction) == ("white", 0.1)
+    assert for_capture(auto, np.zeros((0, 3)), bounds)[0].background == "learned"

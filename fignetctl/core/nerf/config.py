@@ -61,14 +61,16 @@ class NerfConfig:
     (0: off)."""
     background: str = "learned"
     """Colour behind the scene: 'learned' (one RGB), 'environment' (a learned RGB per direction:
-    what lies beyond the scene box, such as a room's walls), 'white' or 'black'."""
+    what lies beyond the scene box, such as a room's walls), 'white' or 'black'; 'auto':
+    'environment' for a capture in a room, else 'learned' (`for_capture`, at the start of a fit)."""
     environment_resolution: int = 32
     """With background 'environment': rows of its equirectangular map (elevation; twice as many
     columns of azimuth)."""
-    near_fraction: float = 0.0
+    near_fraction: float | None = 0.0
     """Rays start at `near` from their camera, set at the start of a fit to this fraction of the
     cameras' median distance to the point they look at, so no camera can explain its own
-    image with fog right in front of it (0: rays start where they enter the scene box)."""
+    image with fog right in front of it (0: rays start where they enter the scene box; None:
+    `ROOM_NEAR` for a capture in a room, else 0, by `for_capture`)."""
     near: float = 0.0
     """That distance in world units (the fit sets it from `near_fraction`)."""
     bounds_margin: float = 0.1
@@ -117,8 +119,11 @@ class NerfConfig:
 PRESETS = {
     # fast: a diffuse colour grid (no MLP) that grows with the density grid, over a box that
     # takes in the walls; early ray termination in training; the distortion term, which clears
-    # fog (docs/fit-nerf.md, "A capture in a room").
+    # fog; in a room, the room's walls as an environment map and rays that start a little away
+    # from their camera (docs/fit-nerf.md, "A capture in a room").
     "fast": NerfConfig(
+        background="auto",
+        near_fraction=None,
         grid_resolution_initial=64,
         grid_resolution=192,
         upsample_steps=(80, 200),
@@ -133,6 +138,8 @@ PRESETS = {
         steps=1000,
     ),
     "quality": NerfConfig(
+        background="auto",
+        near_fraction=None,
         max_image_side=400,
         grid_resolution_initial=64,
         grid_resolution=320,
@@ -150,6 +157,45 @@ PRESETS = {
         checkpoint_every=500,
     ),
 }
+
+
+ROOM_POINTS = 0.2
+"""A capture was taken in a room when at least this fraction of its sparse points lie outside
+the scene box: walls and floor seen beyond the region the box keeps (`rays.scene_bounds` ends
+it at the cameras' reach)."""
+
+ROOM_NEAR = 0.2
+"""`near_fraction` for a capture in a room."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureKind:
+    """What `for_capture` found: the share of the sparse points outside the scene box, and
+    whether that makes the capture one taken in a room."""
+
+    outside: float
+    room: bool
+
+
+def for_capture(config: NerfConfig, points, bounds) -> tuple[NerfConfig, CaptureKind]:
+    """`config` with an 'auto' `background` and a None `near_fraction` set for the capture whose
+    sparse `points` (M, 3) gave the scene box `bounds` (2, 3): in a room (`ROOM_POINTS`),
+    'environment' and `ROOM_NEAR` (the walls beyond the box get the environment map, and no
+    camera hides fog in front of itself); elsewhere 'learned' and 0. Values set are kept."""
+    import numpy as np
+
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    low, high = np.asarray(bounds, np.float64)
+    inside = np.all((points >= low) & (points <= high), axis=1)
+    outside = float((~inside).mean()) if len(points) else 0.0
+    room = outside >= ROOM_POINTS
+    background = config.background
+    if background == "auto":
+        background = "environment" if room else "learned"
+    near = config.near_fraction
+    if near is None:
+        near = ROOM_NEAR if room else 0.0
+    return dataclasses.replace(config, background=background, near_fraction=near), CaptureKind(outside, room)
 
 
 def preset_config(name: str, **overrides) -> NerfConfig:

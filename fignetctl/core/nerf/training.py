@@ -16,7 +16,7 @@ import time
 
 import torch
 
-from fignetctl.core.nerf.config import NerfConfig
+from fignetctl.core.nerf.config import NerfConfig, for_capture
 from fignetctl.core.nerf.data import load_views, training_rays
 from fignetctl.core.nerf.evaluation import evaluate_views, psnr
 from fignetctl.core.nerf.io import load_nerf, save_nerf
@@ -64,6 +64,7 @@ class NerfTrainer:
         self.generator = torch.Generator().manual_seed(config.seed)
         self.step, self.seconds, self.history, self.data_hash = 0, 0.0, [], data_hash
         self.provenance = None  # the stamp saved files carry (provenance.stamp); None: the version alone
+        self.capture = None  # a new fit's config.CaptureKind, which its 'auto' settings followed
 
     def learning_rate_factor(self) -> float:
         return self.config.learning_rate_decay ** (
@@ -193,6 +194,7 @@ def make_trainer(
         return trainer
     views = load_views(image_dir, cameras, config.max_image_side)
     bounds = scene_bounds(cameras.points, cameras.c2w, config.bounds_margin)
+    config, capture = for_capture(config, cameras.points, bounds)
     if config.near_fraction > 0:
         config = dataclasses.replace(config, near=config.near_fraction * camera_reach(cameras.c2w))
     if isinstance(region, RegionRequest):
@@ -202,7 +204,9 @@ def make_trainer(
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         model = NerfModel(config, bounds, region=region)
-    return NerfTrainer(model, views, config, device, data_hash)
+    trainer = NerfTrainer(model, views, config, device, data_hash)
+    trainer.capture = capture
+    return trainer
 
 
 def finish(trainer: NerfTrainer, path, depth_truth=None):

@@ -780,9 +780,10 @@ def hull_box(density, box, views, settings: ExtractionSettings, grid=None):
 
     The level is the threshold unless the voxels above it fall apart, as a field that holds
     the object only as a thin, patchy shell gives: then it is halved (`HULL_LEVELS`,
-    `HULL_WHOLE`) until the largest part holds most of them, or the part is a cap of the
-    object, V_o too small, and the support search beside it meets the object's own sides.
-    Returns (`box`, threshold) unchanged when no voxel passes (or `hull_resolution` is 0).
+    `HULL_WHOLE`) until the largest part holds most of them. Taken at the threshold, that part
+    would be a piece of the object (a cap), V_o too small, and the support search beside it
+    would meet the object's own sides. Returns (`box`, threshold) unchanged when no voxel
+    passes (or `hull_resolution` is 0).
 
     grid : `hull_grid(density, box, settings)` when already sampled
     """
@@ -834,9 +835,10 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
     """Redraw each prompted view's mask from the object in 3D, so every view agrees.
 
     The voxels of the object's box (`hull_box`, cut `hull_mask_clearance` above the support)
-    with density above the threshold (`hull_box`'s level) that project inside every mask are splatted into each view; GrabCut then settles the edge from
-    colour, with the splat as probable foreground, its core (where the old mask agreed) as
-    certain foreground and a ring around it as probable background. Views without an image
+    with density above the threshold (`hull_box`'s level) that project inside every mask are
+    splatted into each view; GrabCut then settles the edge from colour, with the splat as
+    probable foreground, its core (where the old mask agreed) as certain foreground and a ring
+    around it as probable background. Views without an image
     or without prompts (masks the user gave) keep their masks. Returns the views.
     """
     import cv2

@@ -173,10 +173,10 @@ def run(
 def _report_capture(trainer, settings: Settings, report) -> None:
     """Say so when the preset's 'auto' background and near were set for a capture in a room."""
     capture, config = trainer.capture, trainer.config
-    chosen = []
-    if settings.background in (None, "auto") and capture is not None and capture.room:
-        chosen.append(f"background {config.background}")
-    if settings.near is None and capture is not None and capture.room:
+    if capture is None or not capture.room:
+        return
+    chosen = [f"background {config.background}"] if settings.background in (None, "auto") else []
+    if settings.near is None:
         chosen.append(f"near {config.near_fraction:g}")
     if chosen:
         report(

@@ -641,15 +641,29 @@ def _sphere_depth(view, centre, radius, floor=0.0):
     return np.where(np.isfinite(t), t, 0.0)  # the directions have z-depth 1: t is the z-depth
 
 
+def _ball_views(centre, radius):
+    """(the ball's mesh, three 160×120 views looking at its centre from above, each masked with
+    the ball's outline; their depth is a placeholder of ones)."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+
+    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    truth.apply_translation(centre)
+    views = []
+    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
+        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
+        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
+        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+        views.append(view)
+    return truth, views
+
+
 def test_what_no_view_saw_inside_is_filled():
     """A field that holds only a ball's seen shell (its upper half, as a NeRF fitted from above
     holds it, hollow inside): meshed as it is, a bowl of a fraction of the ball's volume; with
     the hidden part of the visual hull filled (behind the surface in every view), as solid as
     the ball, and no wider."""
-    import trimesh
-
-    from fignetctl.core import pinhole
-
     centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
 
     def shell(points):
@@ -659,15 +673,9 @@ def test_what_no_view_saw_inside_is_filled():
         floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
         return np.where(band | floor, 3000.0, 0.0)
 
-    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
-    truth.apply_translation(centre)
-    views = []
-    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
-        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
-        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
-        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
+    truth, views = _ball_views(centre, radius)
+    for view in views:
         view.depth = _sphere_depth(view, centre, radius)
-        views.append(view)
     box = np.array([[-0.3, -0.3, -0.02], [0.3, 0.3, 0.45]])
     settings = mx.ExtractionSettings(resolution=48, threshold=1000.0, faces=0)
     filled = mx.extract_object(shell, box, settings, views).object_mesh
@@ -686,10 +694,6 @@ def test_a_patchy_shell_gets_the_whole_objects_box_and_the_support_under_it(monk
     the largest piece alone is not the ball (on the foreign room, a cap of it, whose box was so
     small that the support search beside it met the ball's own sides). The hull is taken at the
     level where the shell is one piece: the whole ball's box, and the floor under it."""
-    import trimesh
-
-    from fignetctl.core import pinhole
-
     centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
 
     def patchy_shell(points):
@@ -703,14 +707,7 @@ def test_a_patchy_shell_gets_the_whole_objects_box_and_the_support_under_it(monk
         floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.01)
         return np.where(floor, 3000.0, np.where(band, np.where(spots, 100.0, 20.0), 0.0))
 
-    truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
-    truth.apply_translation(centre)
-    views = []
-    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
-        K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
-        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
-        view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
-        views.append(view)
+    _, views = _ball_views(centre, radius)
     coarse = np.array([[-0.3, -0.3, -0.02], [0.3, 0.3, 0.45]])
     settings = mx.ExtractionSettings(threshold=50.0, padding=0.0)
     box, level = mx.hull_box(patchy_shell, coarse, views, settings)

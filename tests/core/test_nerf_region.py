@@ -104,6 +104,60 @@ def test_region_sampling_is_fine_inside_and_composites_a_constant_density_exactl
     assert depth[0].item() == pytest.approx(exact_depth, abs=5e-3)
 
 
+class _SearchingField:
+    """A region field without `level_order`: each of its queries finds its points' levels itself."""
+
+    def __init__(self, field):
+        self.field = field
+
+    def density(self, points):
+        return self.field.density(points)
+
+    def colour(self, points, directions):
+        return self.field.colour(points, directions)
+
+
+class _SearchingOccupancy:
+    def __init__(self, occupancy):
+        self.occupancy = occupancy
+
+    def lookup(self, points):
+        return self.occupancy.lookup(points)
+
+
+def test_rendering_with_samples_in_level_order_matches_searching_each_query():
+    model = region_model()
+    with torch.no_grad():
+        for grid in model.field.density_grids():
+            grid.copy_(torch.randn_like(grid) * 2 + 4)
+        for grid in model.field.feature_grids():
+            grid.copy_(torch.randn_like(grid))
+        model.field.region_density_grid[0, 0, : TINY.grid_resolution // 2] = -20.0  # empty space to skip
+    model.refresh_occupancy()
+    generator = torch.Generator().manual_seed(3)
+    origins = torch.randn(64, 3, generator=generator) * 0.2 + torch.tensor([0.0, 0.0, -3.0])
+    directions = torch.randn(64, 3, generator=generator) * 0.3 + torch.tensor([0.0, 0.0, 1.0])
+    samples = sample_along_rays(origins, directions, *model.field.bounds, model.step_length)
+    results = []
+    for field, occupancy in (
+        (model.field, model.occupancy),
+        (_SearchingField(model.field), _SearchingOccupancy(model.occupancy)),
+    ):
+        model.zero_grad()
+        rgb, depth, opacity, _ = render_samples(
+            field, occupancy, samples, directions, torch.zeros(3), None, 1e-4, 0.3
+        )
+        (rgb.sum() + depth.sum()).backward()
+        grads = [grid.grad.clone() for grid in [*model.field.density_grids(), *model.field.feature_grids()]]
+        results.append((rgb.detach(), depth.detach(), opacity.detach(), grads))
+    (rgb, depth, opacity, grads), (rgb2, depth2, opacity2, grads2) = results
+    assert 0.05 < float(opacity.mean()) < 0.999  # neither empty nor opaque at the first sample
+    assert torch.equal(rgb, rgb2) and torch.equal(depth, depth2) and torch.equal(opacity, opacity2)
+    for grad, grad2 in zip(grads, grads2):
+        assert grad.abs().sum() > 0
+        torch.testing.assert_close(grad, grad2)
+
+
 def test_region_grid_is_capped_at_max_vertices():
     config = dataclasses.replace(TINY, grid_resolution=64, region_max_vertices=20_000)
     model = region_model(config, resolution=64)

@@ -207,10 +207,17 @@ class GridField(nn.Module):
     def raw_to_density(self, raw, level: int = 0):
         return F.softplus(raw + self.density_shift) / self.reference_voxels()[level]
 
-    def _by_level(self, points, query, width):
-        """(P, width) of query(level, points of that level), each point answered by its level."""
+    def _by_level(self, points, query, width, split=None):
+        """(P, width) of query(level, points of that level), each point answered by its level.
+        `split`: the points come ordered by level, points[:split] outside the region and
+        points[split:] in it (as `level_order` orders them), so no point is searched for."""
         if not self.has_region:
             return query(0, points)
+        if split is not None:
+            parts = (points[:split], points[split:])
+            return torch.cat(
+                [query(level, p) if len(p) else points.new_zeros(0, width) for level, p in enumerate(parts)]
+            )
         inner = self.in_region(points)
         out = points.new_zeros(len(points), width)
         for level, chosen in ((0, ~inner), (1, inner)):
@@ -227,18 +234,29 @@ class GridField(nn.Module):
             return sigma[:, None]
         return torch.where(_inside(points, box), sigma, torch.zeros_like(sigma))[:, None]
 
-    def density(self, points):
-        """σ (P,) at world points (P, 3); 0 outside the box."""
-        return self._by_level(points, self._level_density, 1)[:, 0]
+    def level_order(self, points):
+        """(order (P,), split): the permutation that puts the points outside the region first
+        and those in it after them, and how many are outside; None without a region."""
+        if not self.has_region:
+            return None
+        inner = self.in_region(points)
+        outer = (~inner).nonzero(as_tuple=True)[0]
+        return torch.cat([outer, inner.nonzero(as_tuple=True)[0]]), len(outer)
 
-    def colour(self, points, directions):
-        """RGB (P, 3) in [0, 1] at world points seen along directions (P, 3), any length."""
+    def density(self, points, split=None):
+        """σ (P,) at world points (P, 3); 0 outside the box. `split`: as in `_by_level`."""
+        return self._by_level(points, self._level_density, 1, split)[:, 0]
+
+    def colour(self, points, directions, split=None):
+        """RGB (P, 3) in [0, 1] at world points seen along directions (P, 3), any length.
+        `split`: as in `_by_level`."""
         features = self._by_level(
             points,
             lambda level, p: sample_grid(
                 self.feature_grids()[level], _normalize(p, self.grid_boxes()[level])
             ),
             self.feature_grid.shape[1],
+            split,
         )
         if self.colour_mlp is None:
             return torch.sigmoid(features[:, :3])
@@ -320,10 +338,18 @@ class OccupancyGrid(nn.Module):
                 pooled = F.max_pool3d(alpha[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
                 setattr(self, name, pooled > threshold)
 
-    def lookup(self, points):
-        """(P,) bool for world points (P, 3); False outside the box."""
+    def lookup(self, points, split=None):
+        """(P,) bool for world points (P, 3); False outside the box. `split`: the points come
+        ordered as GridField.level_order orders them, `split` of them outside the region."""
         if not self.has_region:
             return _lookup(self.occupied, self.bounds, points)
+        if split is not None:
+            return torch.cat(
+                [
+                    _lookup(self.occupied, self.bounds, points[:split]),
+                    _lookup(self.region_occupied, self.region, points[split:]),
+                ]
+            )
         inner = _inside(points, self.region)
         occupied = torch.zeros(len(points), dtype=torch.bool, device=points.device)
         for chosen, grid, box in (

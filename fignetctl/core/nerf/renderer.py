@@ -2,7 +2,9 @@
 
 A field here is anything with `density(points (P,3)) -> (P,)` and
 `colour(points (P,3), directions (P,3)) -> (P,3)`; an occupancy is anything with
-`lookup(points) -> (P,) bool`. Compositing (Max 1995, NeRF):
+`lookup(points) -> (P,) bool`. A field with two levels (GridField with a region) also has
+`level_order(points) -> (order, split)`, and then its `density`, `colour` and the occupancy's
+`lookup` take the points in that order with `split` of them on the first level. Compositing (Max 1995, NeRF):
 
     αᵢ = 1 − exp(−σᵢ δᵢ),  Tᵢ = exp(−Σ_{j<i} σⱼ δⱼ),  wᵢ = Tᵢ αᵢ
     C = Σ wᵢ cᵢ + (1 − Σ wᵢ) · background,  opacity = Σ wᵢ,  depth = Σ wᵢ tᵢ / Σ wᵢ
@@ -64,47 +66,41 @@ def sample_along_rays(origins, directions, low, high, step_length: float, jitter
     return RaySamples(t=t, points=points, step=step_t * norms, valid=valid)
 
 
-def _segment(start, end, step_t, offset):
-    """Samples of the segments [start, end) (R,): each cut into ceil(length / step_t) equal
-    pieces, one sample in each (at `offset` of it). Returns t (R, n), valid (R, n) and the
-    pieces' length in ray parameter (R,), so that a segment's samples add up to its length."""
-    length = (end - start).clamp(min=0)
-    pieces = torch.ceil(length / step_t - 1e-6).clamp(min=0)
-    count = int(pieces.max().item()) if len(start) else 0
-    index = torch.arange(max(count, 1), device=start.device, dtype=start.dtype)
-    piece = length / pieces.clamp(min=1)
-    t = start[:, None] + (index[None, :] + offset[:, None]) * piece[:, None]
-    return t, index[None, :] < pieces[:, None], piece
-
-
 def _sample_with_region(origins, directions, near, far, norms, offset, steps: RegionSteps):
-    """Three segments per ray: before the region, in it (fine) and after it, each sampled
-    evenly so that its samples' steps add up to its length; the valid samples first."""
+    """Three segments per ray: before the region, in it (fine) and after it, each cut into
+    ceil(length / step) equal pieces with one sample in each (at `offset` of it), so that a
+    segment's samples add up to its length; a ray's samples in order, padding after them."""
     low, high = (b.to(device=origins.device, dtype=origins.dtype) for b in (steps.low, steps.high))
     region_near, region_far = ray_box_intersection(origins, directions, low, high)
     region_near, region_far = torch.maximum(region_near, near), torch.minimum(region_far, far)
     hits = region_far > region_near
     coarse_t, fine_t = float(steps) / norms, steps.fine / norms
-    parts = [
-        _segment(near, torch.where(hits, region_near, far), coarse_t, offset),
-        _segment(region_near, torch.where(hits, region_far, region_near), fine_t, offset),
-        _segment(torch.where(hits, region_far, far), far, coarse_t, offset),
-    ]
-    t = torch.cat([part[0] for part in parts], dim=1)
-    valid = torch.cat([part[1] for part in parts], dim=1)
-    step = torch.cat([(part[2] * norms)[:, None].expand_as(part[0]) for part in parts], dim=1)
-    # the valid samples first in each row, in order (they are in order along the ray already)
-    count = max(1, int(valid.sum(dim=1).max().item())) if len(t) else 1
-    rows, columns = valid.nonzero(as_tuple=True)
-    slots = (valid.cumsum(dim=1) - 1)[rows, columns]
-    packed_t = far[:, None].expand(-1, count).clone()  # padding: beyond every valid sample
-    packed_t[rows, slots] = t[rows, columns]
-    packed_step = torch.zeros_like(packed_t)
-    packed_step[rows, slots] = step[rows, columns]
-    packed_valid = torch.zeros_like(packed_t, dtype=torch.bool)
-    packed_valid[rows, slots] = True
-    points = origins[:, None, :] + packed_t[..., None] * directions[:, None, :]
-    return RaySamples(t=packed_t, points=points, step=packed_step, valid=packed_valid)
+    segments = (
+        (near, torch.where(hits, region_near, far), coarse_t),
+        (region_near, torch.where(hits, region_far, region_near), fine_t),
+        (torch.where(hits, region_far, far), far, coarse_t),
+    )
+    starts, pieces, counts = [], [], []
+    for start, end, step_t in segments:
+        length = (end - start).clamp(min=0)
+        count = torch.ceil(length / step_t - 1e-6).clamp(min=0)
+        starts.append(start[:, None])
+        pieces.append((length / count.clamp(min=1))[:, None])
+        counts.append(count[:, None])
+    first, second = counts[0], counts[0] + counts[1]
+    total = second + counts[2]
+    width = max(1, int(total.max().item())) if len(origins) else 1
+    slot = torch.arange(width, device=origins.device, dtype=origins.dtype)[None, :]
+    # which segment each slot of a row falls in, and its index within that segment
+    in_first, in_second = slot < first, slot < second
+    pick = lambda values: torch.where(in_first, values[0], torch.where(in_second, values[1], values[2]))
+    local = slot - torch.where(in_first, 0.0, torch.where(in_second, first, second))
+    piece = pick(pieces)
+    valid = slot < total
+    t = torch.where(valid, pick(starts) + (local + offset[:, None]) * piece, far[:, None])
+    step = torch.where(valid, piece * norms[:, None], torch.zeros_like(piece))
+    points = origins[:, None, :] + t[..., None] * directions[:, None, :]
+    return RaySamples(t=t, points=points, step=step, valid=valid)
 
 
 def _per_sample(step, rows=None, cols=None):
@@ -187,28 +183,44 @@ def render_samples(
             query, query_directions = warped
         else:
             query = warped
-    keep = (
-        occupancy.lookup(query)
-        if occupancy is not None
-        else torch.ones(len(query), dtype=torch.bool, device=query.device)
-    )
-    rows, cols = flat_index[0][keep], flat_index[1][keep]
-    query, query_directions = query[keep], query_directions[keep]
+    rows, cols = flat_index
+    # with a region, the samples are ordered by level once, so each query of the field below
+    # splits them by slicing instead of searching (`split` of them lie outside the region)
+    split, levels = None, field.level_order(query) if hasattr(field, "level_order") else None
+    if levels is not None:
+        order, split = levels
+        rows, cols, query, query_directions = rows[order], cols[order], query[order], query_directions[order]
+
+    def density(points):
+        return field.density(points) if split is None else field.density(points, split)
+
+    def kept(mask):
+        nonlocal rows, cols, query, query_directions, split
+        if split is not None:
+            split = int(mask[:split].sum())
+        rows, cols, query, query_directions = rows[mask], cols[mask], query[mask], query_directions[mask]
+
+    if occupancy is not None:
+        kept(occupancy.lookup(query) if split is None else occupancy.lookup(query, split))
     if transmittance_threshold > 0 and len(query):
         with torch.no_grad():
             optical = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
-            optical[rows, cols] = field.density(query) * _per_sample(samples.step, rows, cols)
+            optical[rows, cols] = density(query) * _per_sample(samples.step, rows, cols)
             before = torch.cumsum(optical, dim=-1) - optical
-            alive = (before < -torch.log(torch.tensor(transmittance_threshold)))[rows, cols]
-        rows, cols, query, query_directions = rows[alive], cols[alive], query[alive], query_directions[alive]
+            kept((before < -torch.log(torch.tensor(transmittance_threshold)))[rows, cols])
     sigma = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
     if len(query):
-        sigma = sigma.index_put((rows, cols), field.density(query))
+        sigma = sigma.index_put((rows, cols), density(query))
     lookup = torch.full((R, S), -1, dtype=torch.long, device=sigma.device)
     lookup[rows, cols] = torch.arange(len(rows), device=sigma.device)
 
     def colour_of(mask):
         chosen = lookup[mask]
-        return field.colour(query[chosen], query_directions[chosen])
+        if split is None:
+            return field.colour(query[chosen], query_directions[chosen])
+        # in level order for the field, then back in the mask's order
+        chosen, position = chosen.sort()
+        colours = field.colour(query[chosen], query_directions[chosen], int((chosen < split).sum()))
+        return torch.zeros_like(colours).index_put((position,), colours)
 
     return composite(sigma, samples.step, samples.t, background, colour_of, weight_threshold)

@@ -104,6 +104,26 @@ def test_region_sampling_is_fine_inside_and_composites_a_constant_density_exactl
     assert depth[0].item() == pytest.approx(exact_depth, abs=5e-3)
 
 
+def test_region_step_ratio_spaces_the_samples_in_the_region_alone():
+    plain, wide = region_model(), region_model(dataclasses.replace(TINY, region_step_ratio=1.0))
+    fine = plain.field.region_voxel_size
+    assert plain.step_length.fine == pytest.approx(TINY.step_ratio * fine)  # 0: step_ratio
+    assert wide.step_length.fine == pytest.approx(fine)
+    assert float(wide.step_length) == float(plain.step_length)  # outside the region: unchanged
+    set_constant_density(wide, 0.7)
+    origins, directions = torch.tensor([[0.0, 0.1, -3.0]]), torch.tensor([[0.0, 0.0, 1.0]])
+    samples = sample_along_rays(origins, directions, *wide.field.bounds, wide.step_length)
+    with torch.no_grad():
+        _, _, opacity, _ = render_samples(wide.field, wide.occupancy, samples, directions, torch.zeros(3))
+    assert opacity.item() == pytest.approx(1 - math.exp(-0.7 * 2.0), abs=2e-3)
+    counts = [
+        int(sample_along_rays(origins, directions, *m.field.bounds, m.step_length).valid.sum())
+        for m in (plain, wide)
+    ]
+    in_region = 0.5 / fine  # the ray crosses the region for z in [-0.25, 0.25]
+    assert counts[0] - counts[1] == pytest.approx(in_region, abs=2)
+
+
 class _SearchingField:
     """A region field without `level_order`: each of its queries finds its points' levels itself."""
 

@@ -79,6 +79,9 @@ class NerfConfig:
     """With a region: the scene box's grids (outside the region) have this fraction of the
     resolutions above along the box's longest side; the region's grids have the resolutions above
     along the region's longest side."""
+    region_step_ratio: float = 0.0
+    """With a region: distance between samples inside it, in voxels of its density grid (0:
+    `step_ratio`); outside it samples are `step_ratio` voxels of the coarse grid apart."""
     region_max_vertices: int = 0
     """With a region: its grids' resolutions are scaled down (at every step alike) until its density
     grid has at most this many vertices at the end; 0: as many as `grid_resolution` over the whole
@@ -135,6 +138,7 @@ PRESETS = {
         transmittance_threshold=1e-3,
         bounds_margin=0.05,
         distortion_weight=0.03,
+        region_step_ratio=1.0,
         steps=1000,
     ),
     "quality": NerfConfig(

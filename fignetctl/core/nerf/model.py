@@ -98,7 +98,7 @@ class NerfModel(nn.Module):
         step = self.config.step_ratio * self.field.voxel_size
         if not self.field.has_region:
             return step
-        fine = self.config.step_ratio * self.field.region_voxel_size
+        fine = (self.config.region_step_ratio or self.config.step_ratio) * self.field.region_voxel_size
         return RegionSteps(step, self.field.region[0], self.field.region[1], fine)
 
     def refresh_occupancy(self) -> None:

@@ -64,6 +64,13 @@ class Settings:
     )
     steps: int = setting(20000, "Total optimiser steps (a resumed run continues to this).", low=1, high=10**9)
     batch_size: int = setting(4, "Scenes per step.", low=1, high=4096)
+    pushforward: int = setting(
+        0,
+        "Examples per batch whose frame t is the model's own prediction from t-1, so it learns from "
+        "its rollouts' errors (docs/simulator.md); fewer than --batch-size.",
+        low=0,
+        high=4095,
+    )
     learning_rate: tuple[float, float] = setting(
         (3e-4, 3e-5),
         "Adam's learning rate decays exponentially from INITIAL to FINAL over --steps (the paper's "
@@ -129,6 +136,11 @@ def run(
     rates = settings.learning_rate
     if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
         raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
+    if settings.pushforward >= settings.batch_size:
+        raise SettingError(
+            f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "
+            "the others are ordinary examples"
+        )
     if settings.resume and overwrite:
         raise SettingError("--resume continues --output, --overwrite replaces it: give one")
     if settings.resume and init_from:
@@ -152,6 +164,7 @@ def run(
         learning_rate_initial=settings.learning_rate[0],
         learning_rate_final=settings.learning_rate[1],
         loss=settings.loss,
+        pushforward=settings.pushforward,
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,

@@ -2,8 +2,10 @@
 
 Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and t+1 around
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
-regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss. Adam with a
-learning rate decaying exponentially from `learning_rate_initial` to `learning_rate_final`.
+regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss (with
+`pushforward`, that many of them take frame t from the simulator's own prediction instead).
+Adam with a learning rate decaying exponentially from `learning_rate_initial` to
+`learning_rate_final`.
 
 Throughput: the batches are built in worker processes (`TrainingBatches` behind a torch
 DataLoader) while the training process runs the network, and the network runs in bfloat16
@@ -63,6 +65,12 @@ class TrainingSettings:
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
     huber_delta: float = 0.5
     """Where the Huber loss turns from quadratic to linear, in target standard deviations."""
+    pushforward: int = 0
+    """Examples of each batch (of `batch_size`) whose frame t is the simulator's own prediction
+    from the true frame t−1, without a gradient through that prediction, instead of a noisy copy
+    of the truth (the pushforward trick of Brandstetter et al. 2022: the network meets the
+    errors its own rollouts make); built in the training process, ordinary examples until the
+    normalizers freeze."""
     normalizer_accumulation_steps: int = 500
     """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
@@ -125,33 +133,64 @@ def training_example(simulator_config, scene, frame, generator, config: Training
     """One noisy example: the raw graph and the raw targets of its dynamic vertices, (Vd, 3)
     accelerations, or (Vd, 6) position and velocity corrections for a velocity state
     (simulator.py's module docstring)."""
-    geometry = scene.geometry
-    clean_positions, clean_quaternions = (
+    positions, quaternions = jitter_frame_t(
         scene.positions[frame - 1 : frame + 2],
         scene.quaternions[frame - 1 : frame + 2],
-    )
-    positions, quaternions = jitter_frame_t(
-        clean_positions, clean_quaternions, geometry.static, generator, config
+        scene.geometry.static,
+        generator,
+        config,
     )
     velocities = (
         jittered_step_velocities(scene, frame, generator, config)
         if simulator_config.uses_velocities
         else None
     )
+    return example_from_state(simulator_config, scene, frame, positions, quaternions, velocities, config)
+
+
+def pushforward_example(simulator, scene, frame, config: TrainingSettings):
+    """The example at `frame` (2 ≤ frame ≤ T − 2) whose frame t is what `simulator` predicts from
+    the true frames before it (and the true velocities at t − 1 for a velocity state)."""
+    window = slice(frame - 2, frame + 1)
+    velocities = None
+    if simulator.config.uses_velocities:
+        velocities = (scene.velocities[frame - 1], scene.angular_velocities[frame - 1])
+    predicted = simulator.predict(
+        scene.geometry, scene.positions[window], scene.quaternions[window], velocities=velocities
+    )
+    positions = np.array(scene.positions[frame - 1 : frame + 2], np.float64)
+    quaternions = np.array(scene.quaternions[frame - 1 : frame + 2], np.float64)
+    positions[1], quaternions[1] = predicted[0], predicted[1]
+    step_velocities = None
+    if simulator.config.uses_velocities:
+        step_velocities = (predicted[2] * scene.dt, predicted[3] * scene.dt)
+    return example_from_state(simulator.config, scene, frame, positions, quaternions, step_velocities, config)
+
+
+def example_from_state(simulator_config, scene, frame, positions, quaternions, velocities, config):
+    """The raw graph of frames t − 1, t, t + 1 = `frame` + (−1, 0, 1) as given ((3, O, 3),
+    (3, O, 4); frame t may differ from the scene's, by noise or a prediction; frame t + 1 is the
+    scene's) with `velocities` (per step, or None), and the raw targets that reach the scene's
+    frame t + 1 (shifted by frame t's difference from the scene's when the target keeps it)."""
+    geometry = scene.geometry
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
         after = (
             after
             + now
-            - geometry.world_vertices(clean_positions[1], clean_quaternions[1], geometry.dynamic_vertices)
+            - geometry.world_vertices(
+                scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
+            )
         )
     next_velocities = None
     if velocities is not None:
         next_velocities = rigid_point_velocities(
-            geometry.world_vertices(clean_positions[2], clean_quaternions[2], geometry.dynamic_vertices),
+            geometry.world_vertices(
+                scene.positions[frame + 1], scene.quaternions[frame + 1], geometry.dynamic_vertices
+            ),
             geometry.vertex_object[geometry.dynamic_vertices],
-            clean_positions[2],
+            scene.positions[frame + 1],
             scene.velocities[frame + 1] * scene.dt,
             scene.angular_velocities[frame + 1] * scene.dt,
         )
@@ -170,21 +209,35 @@ class TrainingBatches(torch.utils.data.Dataset):
         return self.config.steps
 
     def __getitem__(self, step: int) -> dict:
-        """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw targets}."""
+        """`batch_of` the step's examples but the `pushforward` ones."""
         rng = np.random.default_rng([self.config.seed, self.rank, step])
         noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
         examples = []
-        for _ in range(self.config.batch_size):
+        for _ in range(self.config.batch_size - self.config.pushforward):  # Trainer adds the others
             scene = self.scenes[rng.integers(len(self.scenes))]
             frame = int(rng.integers(1, scene.positions.shape[0] - 1))  # t−1 and t+1 inside the trajectory
             examples.append(
                 training_example(self.simulator_config, scene, frame, noise_generator, self.config)
             )
-        return {
-            "graph": batch_graphs([e[0].graph for e in examples]),
-            "rows": dynamic_rows([e[0] for e in examples]),
-            "targets": torch.cat([e[1] for e in examples]),
-        }
+        return batch_of(examples)
+
+
+def batch_of(examples) -> dict:
+    """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw targets}."""
+    return {
+        "graph": batch_graphs([e[0].graph for e in examples]),
+        "rows": dynamic_rows([e[0] for e in examples]),
+        "targets": torch.cat([e[1] for e in examples]),
+    }
+
+
+def joined(first: dict, second: dict) -> dict:
+    """Two `batch_of` batches as one."""
+    return {
+        "graph": batch_graphs([first["graph"], second["graph"]]),
+        "rows": torch.cat([first["rows"], second["rows"] + first["graph"].num_nodes]),
+        "targets": torch.cat([first["targets"], second["targets"]]),
+    }
 
 
 def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
@@ -217,6 +270,11 @@ class Trainer:
     """
 
     def __init__(self, scenes, simulator, config: TrainingSettings, device="cpu", data_hash="", workers=0):
+        if not 0 <= config.pushforward < config.batch_size:
+            raise FignetError(
+                f"pushforward = {config.pushforward}: give 0 to batch_size - 1 ({config.batch_size - 1}); "
+                "the others are ordinary examples"
+            )
         self.rank, device = distributed.join_process_group(device)
         simulator.trained_properties = property_ranges(
             ((s.geometry.properties, s.geometry.static) for s in scenes),
@@ -234,6 +292,8 @@ class Trainer:
         """One optimiser step on `batch` (default: this step's batch, built here)."""
         batch = self.batches[self.step] if batch is None else batch
         accumulate = self.step < self.config.normalizer_accumulation_steps
+        if self.config.pushforward:
+            batch = joined(batch, self.own_examples(self.step, accumulate))
         graph = batch["graph"].to(self.device)
         normalized_targets = self.simulator.normalized_targets(batch["targets"].to(self.device), accumulate)
         with torch.autocast(
@@ -243,6 +303,25 @@ class Trainer:
         loss = regression_loss(predictions.float(), normalized_targets, self.config)
         self._apply(loss)
         return float(loss.detach())
+
+    def own_examples(self, step: int, ordinary: bool) -> dict:
+        """The `pushforward` examples of batch `step` (from (seed, rank, step) alone, as the
+        others): on frames the simulator predicted, or ordinary noisy ones when `ordinary`
+        (the normalizers are still gathering) or a trajectory is under four frames long."""
+        rng = np.random.default_rng([self.config.seed, self.rank, step, 1])
+        noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+        examples = []
+        for _ in range(self.config.pushforward):
+            scene = self.scenes[rng.integers(len(self.scenes))]
+            frames = scene.positions.shape[0]
+            frame = int(rng.integers(2, frames - 1)) if frames >= 4 else 1
+            if ordinary or frames < 4:
+                examples.append(
+                    training_example(self.simulator.config, scene, frame, noise_generator, self.config)
+                )
+            else:
+                examples.append(pushforward_example(self.simulator, scene, frame, self.config))
+        return batch_of(examples)
 
     def _apply(self, loss):
         for group in self.optimizer.param_groups:

@@ -334,3 +334,75 @@ def test_a_copy_with_another_collision_radius_shares_the_weights_but_not_the_gra
         assert name == other_name and torch.equal(mine, theirs)
     with pytest.raises(FignetError, match="change the network's inputs"):
         simulator.with_graph_config(surface_edges=True)
+
+
+class _Oracle:
+    """A simulator that predicts frame t of `scene` exactly, shifted by `shift` (m)."""
+
+    def __init__(self, config, scene, frame, shift=0.0):
+        self.config, self.scene, self.frame, self.shift = config, scene, frame, shift
+
+    def predict(self, geometry, positions, quaternions, velocities=None):
+        np.testing.assert_array_equal(positions[1], self.scene.positions[self.frame - 1])  # the true t−1
+        np.testing.assert_array_equal(velocities[0], self.scene.velocities[self.frame - 1])
+        moved = np.array(self.scene.positions[self.frame], np.float64)
+        moved[~geometry.static] += self.shift
+        return (
+            moved,
+            np.array(self.scene.quaternions[self.frame], np.float64),
+            np.array(self.scene.velocities[self.frame], np.float64),
+            np.array(self.scene.angular_velocities[self.frame], np.float64),
+        )
+
+
+@pytest.mark.parametrize("keeps_noise", [True, False])
+def test_a_pushforward_example_is_the_noise_free_one_from_an_exact_prediction_and_keeps_its_error(
+    tmp_path, keeps_noise
+):
+    from fignetctl.core.model.training import pushforward_example, training_example
+
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    config = TrainingSettings(
+        noise_translation_std=0.0, noise_rotation_std=0.0, target_keeps_noise=keeps_noise
+    )
+    scene = make_trainer(path, VELOCITY_TINY, config).scenes[0]
+    clean_graph, clean = training_example(VELOCITY_TINY, scene, 5, torch.Generator().manual_seed(0), config)
+    exact_graph, exact = pushforward_example(_Oracle(VELOCITY_TINY, scene, 5), scene, 5, config)
+    torch.testing.assert_close(exact, clean)
+    torch.testing.assert_close(exact_graph.graph.node_features, clean_graph.graph.node_features)
+    shift = np.array([0.01, -0.02, 0.005])
+    _, shifted = pushforward_example(_Oracle(VELOCITY_TINY, scene, 5, shift), scene, 5, config)
+    # x_{t+1} = x_t + u_t + a_x: a target that keeps frame t's error keeps the object where the
+    # prediction put it; else it is asked to undo the shift
+    expected_position_part = clean[:, :3] - (0 if keeps_noise else torch.tensor(shift, dtype=torch.float32))
+    torch.testing.assert_close(shifted[:, :3], expected_position_part)
+    torch.testing.assert_close(shifted[:, 3:], clean[:, 3:])
+
+
+def test_pushforward_training_predicts_its_own_frames_and_resumes_exactly(tmp_path, monkeypatch):
+    from fignetctl.core.model import training
+
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    config = TrainingSettings(
+        steps=6, batch_size=2, pushforward=1, normalizer_accumulation_steps=2, checkpoint_every=3
+    )
+    honest, calls = training.pushforward_example, []
+
+    def counted(*args):
+        calls.append(1)
+        return honest(*args)
+
+    monkeypatch.setattr(training, "pushforward_example", counted)
+    straight = make_trainer(path, VELOCITY_TINY, config)
+    straight.run()
+    assert len(calls) == 4  # one per step once the normalizers froze (steps 2..5)
+    assert len(straight.batches[0]["rows"]) == len(
+        straight.scenes[0].geometry.dynamic_vertices
+    )  # one worker example
+    interrupted = make_trainer(path, VELOCITY_TINY, config)
+    interrupted.run(tmp_path / "half.pt", until_step=3)
+    resumed = make_trainer(path, VELOCITY_TINY, config, resume_from=tmp_path / "half.pt")
+    assert resumed.config.pushforward == 1
+    resumed.run()
+    for name, value in straight.simulator.state_dict().items():
+        torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=0, atol=0)

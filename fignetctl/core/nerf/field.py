@@ -171,20 +171,6 @@ class GridField(nn.Module):
         voxels = [self.reference_voxel]
         return voxels + [self.region_reference_voxel] if self.has_region else voxels
 
-    def normalize(self, points):
-        """World (P, 3) -> [-1, 1] box coordinates (outside the box: beyond ±1)."""
-        return _normalize(points, self.bounds)
-
-    def inside(self, points):
-        """(P,) bool: the point lies in the closed box."""
-        return _inside(points, self.bounds)
-
-    def in_region(self, points):
-        """(P,) bool: the point lies in the closed region (all False without one)."""
-        if not self.has_region:
-            return torch.zeros(len(points), dtype=torch.bool, device=points.device)
-        return _inside(points, self.region)
-
     @property
     def voxel_size(self) -> float:
         """Edge of a voxel of the scene box's density grid (world units) at the current resolution."""
@@ -210,21 +196,16 @@ class GridField(nn.Module):
     def _by_level(self, points, query, width, split=None):
         """(P, width) of query(level, points of that level), each point answered by its level.
         `split`: the points come ordered by level, points[:split] outside the region and
-        points[split:] in it (as `level_order` orders them), so no point is searched for."""
+        points[split:] in it (as `level_order` orders them); else they are ordered here."""
         if not self.has_region:
             return query(0, points)
-        if split is not None:
-            parts = (points[:split], points[split:])
-            return torch.cat(
-                [query(level, p) if len(p) else points.new_zeros(0, width) for level, p in enumerate(parts)]
-            )
-        inner = self.in_region(points)
-        out = points.new_zeros(len(points), width)
-        for level, chosen in ((0, ~inner), (1, inner)):
-            index = chosen.nonzero(as_tuple=True)[0]
-            if len(index):
-                out = out.index_put((index,), query(level, points[index]))
-        return out
+        if split is None:
+            order, split = self.level_order(points)
+            return _unordered(self._by_level(points[order], query, width, split), order)
+        parts = (points[:split], points[split:])
+        return torch.cat(
+            [query(level, p) if len(p) else points.new_zeros(0, width) for level, p in enumerate(parts)]
+        )
 
     def _level_density(self, level, points):
         box = self.grid_boxes()[level]
@@ -237,11 +218,7 @@ class GridField(nn.Module):
     def level_order(self, points):
         """(order (P,), split): the permutation that puts the points outside the region first
         and those in it after them, and how many are outside; None without a region."""
-        if not self.has_region:
-            return None
-        inner = self.in_region(points)
-        outer = (~inner).nonzero(as_tuple=True)[0]
-        return torch.cat([outer, inner.nonzero(as_tuple=True)[0]]), len(outer)
+        return _level_order(points, self.region) if self.has_region else None
 
     def density(self, points, split=None):
         """σ (P,) at world points (P, 3); 0 outside the box. `split`: as in `_by_level`."""
@@ -302,6 +279,19 @@ class GridField(nn.Module):
         return total
 
 
+def _level_order(points, region):
+    """(order (P,), split): the permutation that puts the points outside `region` first and
+    those in it after them, and how many are outside."""
+    inner = _inside(points, region)
+    outer = (~inner).nonzero(as_tuple=True)[0]
+    return torch.cat([outer, inner.nonzero(as_tuple=True)[0]]), len(outer)
+
+
+def _unordered(values, order):
+    """`values` of the points `order` picked, put back in the points' own order."""
+    return torch.zeros_like(values).index_put((order,), values)
+
+
 def _lookup(occupied, box, points):
     shape = torch.tensor(occupied.shape, device=points.device)
     index = torch.round((points - box[0]) / (box[1] - box[0]) * (shape - 1)).long()
@@ -343,22 +333,15 @@ class OccupancyGrid(nn.Module):
         ordered as GridField.level_order orders them, `split` of them outside the region."""
         if not self.has_region:
             return _lookup(self.occupied, self.bounds, points)
-        if split is not None:
-            return torch.cat(
-                [
-                    _lookup(self.occupied, self.bounds, points[:split]),
-                    _lookup(self.region_occupied, self.region, points[split:]),
-                ]
-            )
-        inner = _inside(points, self.region)
-        occupied = torch.zeros(len(points), dtype=torch.bool, device=points.device)
-        for chosen, grid, box in (
-            (inner, self.region_occupied, self.region),
-            (~inner, self.occupied, self.bounds),
-        ):
-            index = chosen.nonzero(as_tuple=True)[0]
-            occupied[index] = _lookup(grid, box, points[index])
-        return occupied
+        if split is None:
+            order, split = _level_order(points, self.region)
+            return _unordered(self.lookup(points[order], split), order)
+        return torch.cat(
+            [
+                _lookup(self.occupied, self.bounds, points[:split]),
+                _lookup(self.region_occupied, self.region, points[split:]),
+            ]
+        )
 
     @property
     def fraction(self) -> float:

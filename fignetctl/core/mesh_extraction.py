@@ -1071,10 +1071,11 @@ def outline_extents(mesh, views) -> dict:
     return result
 
 
-def check_outline_extents(extents: dict, settings: ExtractionSettings) -> list:
+def check_outline_extents(extents: dict, settings: ExtractionSettings, coarse_field: bool = True) -> list:
     """Compare the mesh's outline with the masks per view and image axis (`outline_extents`).
     FignetError when the median view's worst axis is off by more than max_extent; else a
-    warning line (returned and logged) for each view and axis off by more than warn_extent."""
+    warning line (returned and logged) for each view and axis off by more than warn_extent. A
+    finer NeRF is advised only for a `coarse_field` (its voxel large for the object, or unknown)."""
     worst = {}
     for name, axes in extents.items():
         errors = {axis: drawn / masked - 1.0 for axis, (drawn, masked) in axes.items() if masked > 0}
@@ -1084,8 +1085,9 @@ def check_outline_extents(extents: dict, settings: ExtractionSettings) -> list:
         return []
     median = float(np.median([abs(error) for _, error in worst.values()]))
     advice = (
-        "fit a finer NeRF around the objects (fit-nerf's `region=prompts`), add prompted views, "
-        f"or set `threshold` (now {settings.threshold:g}; lower grows the mesh, higher shrinks it)"
+        ("fit a finer NeRF around the objects (fit-nerf's `region=prompts`), " if coarse_field else "")
+        + f"add prompted views, or set `threshold` (now {settings.threshold:g}; lower grows the mesh, "
+        "higher shrinks it)"
     )
     if median > settings.max_extent:
         name = max(worst, key=lambda key: abs(worst[key][1]))

@@ -65,7 +65,8 @@ def extract(
     }
     check_mask_agreement(agreement, settings)
     extents = outline_extents(extraction.object_mesh, views)
-    warnings = check_outline_extents(extents, settings)
+    coarse = voxel is None or voxel > settings.warn_voxel * _smallest_side(extraction.object_mesh)
+    warnings = check_outline_extents(extents, settings, coarse)
     warnings += _mesh_warnings(extraction.object_mesh, settings, voxel)
     checks = {
         "mask_iou": agreement,
@@ -89,7 +90,7 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
             "inertia are not defined and the simulation needs a closed mesh; try more `faces` "
             "(decimation can open it) or another `threshold`"
         )
-    smallest = float(np.min(mesh.extents)) if len(mesh.vertices) else 0.0
+    smallest = _smallest_side(mesh)
     if voxel is not None and smallest > 0 and voxel > settings.max_voxel * smallest:
         raise FignetError(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
@@ -106,6 +107,10 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
     for line in warnings:
         log.warning("%s", line)
     return warnings
+
+
+def _smallest_side(mesh) -> float:
+    return float(np.min(mesh.extents)) if len(mesh.vertices) else 0.0
 
 
 def _threshold(density, box, views, settings: ExtractionSettings):

@@ -439,6 +439,9 @@ def test_a_mesh_too_wide_for_its_masks_is_warned_per_view_and_axis_and_a_far_off
     )
     assert any(views[1].name in line and "image width" in line for line in warnings)  # x is across view 1
     assert caplog.text.count("than the mask (") == len(warnings)
+    fine = mx.check_outline_extents(mx.outline_extents(wide, views), settings, coarse_field=False)
+    assert len(fine) == len(warnings) and not any("finer NeRF" in line for line in fine)
+    assert all("add prompted views" in line for line in fine)  # a field fine enough: other advice only
     small = box.copy()
     small.apply_scale(0.8)
     assert any(

@@ -3,8 +3,9 @@
 A field here is anything with `density(points (P,3)) -> (P,)` and
 `colour(points (P,3), directions (P,3)) -> (P,3)`; an occupancy is anything with
 `lookup(points) -> (P,) bool`. A field with two levels (GridField with a region) also has
-`level_order(points) -> (order, split)`, and then its `density`, `colour` and the occupancy's
-`lookup` take the points in that order with `split` of them on the first level. Compositing (Max 1995, NeRF):
+`level_order(points) -> (order, split)`, and then its `density` and the occupancy's `lookup`
+also take the points in that order with `split` of them on the first level. Compositing
+(Max 1995, NeRF):
 
     αᵢ = 1 − exp(−σᵢ δᵢ),  Tᵢ = exp(−Σ_{j<i} σⱼ δⱼ),  wᵢ = Tᵢ αᵢ
     C = Σ wᵢ cᵢ + (1 − Σ wᵢ) · background,  opacity = Σ wᵢ,  depth = Σ wᵢ tᵢ / Σ wᵢ
@@ -214,13 +215,8 @@ def render_samples(
     lookup = torch.full((R, S), -1, dtype=torch.long, device=sigma.device)
     lookup[rows, cols] = torch.arange(len(rows), device=sigma.device)
 
-    def colour_of(mask):
+    def colour_of(mask):  # in the mask's order, which mixes the levels: the field orders them
         chosen = lookup[mask]
-        if split is None:
-            return field.colour(query[chosen], query_directions[chosen])
-        # in level order for the field, then back in the mask's order
-        chosen, position = chosen.sort()
-        colours = field.colour(query[chosen], query_directions[chosen], int((chosen < split).sum()))
-        return torch.zeros_like(colours).index_put((position,), colours)
+        return field.colour(query[chosen], query_directions[chosen])
 
     return composite(sigma, samples.step, samples.t, background, colour_of, weight_threshold)

@@ -11,9 +11,15 @@ import torch
 from fignetctl.core.cameras import Cameras, write_cameras
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.io import load_nerf, save_nerf
-from fignetctl.core.nerf.model import NerfModel
+from fignetctl.core.nerf.model import NerfModel, Rendering
 from fignetctl.core.nerf.rays import scene_bounds
-from fignetctl.core.nerf.renderer import distortion, render_samples, sample_along_rays
+from fignetctl.core.nerf.renderer import (
+    distortion,
+    median_depth,
+    per_sample,
+    render_samples,
+    sample_along_rays,
+)
 from fignetctl.core.nerf.training import make_trainer
 from fignetctl.core.pinhole import look_at, pixel_rays
 from fignetctl.errors import FignetError, FormatError
@@ -118,6 +124,57 @@ def test_constant_density_gives_beer_lambert_opacity_and_expected_depth():
     assert depth[0].item() == pytest.approx(exact_distance, abs=2e-3)
     assert depth[1].item() == pytest.approx(exact_distance / 2, abs=2e-3)  # ray parameter, not distance
     assert rgb[:, 0].numpy() == pytest.approx([exact_opacity] * 2, abs=1e-3)
+
+
+def test_median_depth_is_where_half_the_light_is_lost_and_haze_does_not_move_it():
+    """In the constant-density slab of the test above, half the light is lost at
+    a + ln(2 / (1 + e^{−σL})) / σ (a coarse step interpolates to it); a faint haze in front of
+    an opaque face pulls Σ w t / Σ w towards the camera but leaves the median on the face."""
+    sigma = 1.5
+    origins = torch.tensor([[0.0, 0.0, -3.0], [0.2, -0.1, -3.0]])
+    directions = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]])
+    low, high = torch.tensor([-1.0] * 3), torch.tensor([1.0] * 3)
+    exact = 2.5 + math.log(2 / (1 + math.exp(-sigma))) / sigma
+    for step in (1e-3, 0.05):
+        samples = sample_along_rays(origins, directions, low, high, step)
+        _, _, opacity, weights = render_samples(ConstantBox(sigma), None, samples, directions, torch.zeros(3))
+        lengths = per_sample(samples.step) / directions.norm(dim=-1)[:, None]
+        median = median_depth(weights, samples.t, lengths, opacity)
+        assert median[0].item() == pytest.approx(exact, abs=0.1 * step + 1e-3)
+        assert median[1].item() == pytest.approx(exact / 2, abs=0.1 * step + 1e-3)
+
+    class HazeBeforeFace(ConstantBox):
+        def density(self, points):  # 0.3 per unit over z in [-0.5, 0), opaque from z = 0
+            z = points[..., 2]
+            return torch.where(z >= 0, torch.full_like(z, 1e4), torch.where(z >= -0.5, 0.3, 0.0))
+
+    samples = sample_along_rays(origins[:1], directions[:1], low, high, 1e-3)
+    _, depth, opacity, weights = render_samples(
+        HazeBeforeFace(0.0), None, samples, directions[:1], torch.zeros(3)
+    )
+    median = median_depth(weights, samples.t, per_sample(samples.step), opacity)
+    # Σ w t / Σ w: the haze (λ = 0.3 over L = 0.5 from a = 2.5) and the face at 3 behind it
+    haze = 2.5 * (1 - math.exp(-0.15)) + (1 - math.exp(-0.15) * 1.15) / 0.3
+    assert depth.item() == pytest.approx(haze + 3.0 * math.exp(-0.15), abs=2e-3)
+    assert depth.item() < 2.97
+    assert median.item() == pytest.approx(3.0, abs=2e-3)
+    nothing = median_depth(torch.zeros(1, 4), torch.arange(4.0)[None], torch.ones(1, 1), torch.zeros(1))
+    assert nothing.item() == 0.0
+
+
+def test_rendering_some_pixels_gives_those_of_the_whole_image():
+    model = solid_box_model()
+    K = np.array([[20.0, 0, 8.0], [0, 20.0, 6.0], [0, 0, 1]])
+    camera = (K, look_at((0.3, -2.5, 1.5), (0.0, 0.0, 0.0)), 16, 12)
+    whole = model.render(camera)
+    pixels = np.zeros((12, 16), bool)
+    pixels[3:9, 5:12] = True
+    pixels[0, 0] = True
+    part = model.render(camera, pixels=pixels)
+    for name in Rendering._fields:
+        np.testing.assert_allclose(getattr(part, name)[pixels], getattr(whole, name)[pixels], atol=1e-5)
+        assert not getattr(part, name)[~pixels].any()
+    assert (whole.median_depth[whole.opacity > 0.99] > 0).all()
 
 
 def test_opaque_box_depth_is_its_face_and_misses_are_background():

@@ -1,7 +1,7 @@
 """A torch radiance field (dense density grid + colour features, DVGO-like) for fit-nerf.
 
 model = load_nerf("nerf.pt")
-rgb, depth, opacity = model.render(cameras, index)        # any pinhole camera
+rgb, depth, opacity, median_depth = model.render(cameras, index)   # any pinhole camera
 out = model.render_rays(origins, directions, warp=bend)   # ray bending for rerender
 sigma = model.density(points)                             # for extract-mesh
 """

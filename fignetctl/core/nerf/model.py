@@ -11,7 +11,14 @@ from torch import nn
 
 from fignetctl.core.nerf.config import NerfConfig
 from fignetctl.core.nerf.field import GridField, OccupancyGrid
-from fignetctl.core.nerf.renderer import RegionSteps, distortion, render_samples, sample_along_rays
+from fignetctl.core.nerf.renderer import (
+    RegionSteps,
+    distortion,
+    median_depth,
+    per_sample,
+    render_samples,
+    sample_along_rays,
+)
 from fignetctl.core.pinhole import pixel_rays
 from fignetctl.errors import FignetError
 
@@ -25,12 +32,15 @@ LEARNED_BACKGROUNDS = ("learned", "environment")
 
 
 class Rendering(typing.NamedTuple):
-    """A rendered image: rgb (H, W, 3) float32 in [0, 1], depth (H, W) z-depth (0 where
-    nothing is hit), opacity (H, W) accumulated alpha."""
+    """A rendered image: rgb (H, W, 3) float32 in [0, 1], depth (H, W) z-depth Σ w t / Σ w (0
+    where nothing is hit), opacity (H, W) accumulated alpha, median_depth (H, W) z-depth where
+    the ray has lost half its light (`renderer.median_depth`: on the surface even with haze in
+    front of it, which pulls `depth` towards the camera)."""
 
     rgb: np.ndarray
     depth: np.ndarray
     opacity: np.ndarray
+    median_depth: np.ndarray
 
 
 class NerfModel(nn.Module):
@@ -136,7 +146,8 @@ class NerfModel(nn.Module):
         warp(points (P,3)) -> points (P,3) (or (points, directions)) is applied to every sample
         point before the field is queried (ray bending). Returns a dict of tensors:
         rgb (R, 3), depth (R,) the expected ray parameter t of the surface (z-depth for
-        camera rays from `render`), distance (R,) = depth · |d|, opacity (R,). Samples whose
+        camera rays from `render`), median_depth (R,) (`renderer.median_depth`), distance (R,)
+        = depth · |d|, opacity (R,). Samples whose
         compositing weight is below `weight_threshold` (default: the config's) get no colour;
         with `transmittance_threshold` > 0, samples behind which less light is left are dropped.
         `with_distortion`: also distortion (R,), renderer.distortion of each ray's weights, its
@@ -178,24 +189,41 @@ class NerfModel(nn.Module):
             transmittance_threshold,
         )
         norms = directions.norm(dim=-1)
-        out = {"rgb": rgb, "depth": depth, "distance": depth * norms, "opacity": opacity}
+        lengths = per_sample(samples.step) / norms[:, None]  # each step in ray-parameter units
+        out = {
+            "rgb": rgb,
+            "depth": depth,
+            "median_depth": median_depth(weights, samples.t, lengths, opacity),
+            "distance": depth * norms,
+            "opacity": opacity,
+        }
         if with_distortion:
             scale = float((high - low).max())
             out["distortion"] = distortion(weights, samples.t * norms[:, None], samples.step, scale)
         return out
 
     @torch.no_grad()
-    def render(self, camera, index: int = 0, warp=None, chunk: int = 16384) -> Rendering:
-        """Render one camera: a `Cameras` (with `index`) or a tuple (K, c2w, width, height)."""
+    def render(self, camera, index: int = 0, warp=None, chunk: int = 16384, pixels=None) -> Rendering:
+        """Render one camera: a `Cameras` (with `index`) or a tuple (K, c2w, width, height);
+        only the `pixels` set in an (H, W) bool array when given (the others stay 0)."""
         K, c2w, width, height = _camera_tuple(camera, index)
         origins, directions = pixel_rays(K, c2w, width, height)
+        chosen = np.ones((height, width), bool) if pixels is None else np.asarray(pixels, bool)
         device = self.field.density_grid.device
-        o = torch.as_tensor(origins.reshape(-1, 3), dtype=torch.float32, device=device)
-        d = torch.as_tensor(directions.reshape(-1, 3), dtype=torch.float32, device=device)
+        o = torch.as_tensor(origins[chosen], dtype=torch.float32, device=device)
+        d = torch.as_tensor(directions[chosen], dtype=torch.float32, device=device)
         out = self.render_rays(o, d, warp=warp, chunk=chunk)
-        as_image = lambda x, *shape: x.reshape(height, width, *shape).float().cpu().numpy()
+
+        def as_image(x, *shape):
+            image = np.zeros((height, width, *shape), np.float32)
+            image[chosen] = x.reshape(-1, *shape).float().cpu().numpy()
+            return image
+
         return Rendering(
-            as_image(out["rgb"].clamp(0, 1), 3), as_image(out["depth"]), as_image(out["opacity"])
+            as_image(out["rgb"].clamp(0, 1), 3),
+            as_image(out["depth"]),
+            as_image(out["opacity"]),
+            as_image(out["median_depth"]),
         )
 
 

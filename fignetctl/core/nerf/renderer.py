@@ -104,7 +104,7 @@ def _sample_with_region(origins, directions, near, far, norms, offset, steps: Re
     return RaySamples(t=t, points=points, step=step, valid=valid)
 
 
-def _per_sample(step, rows=None, cols=None):
+def per_sample(step, rows=None, cols=None):
     """A RaySamples step as (R, S)-broadcastable, or at samples (rows, cols)."""
     if rows is None:
         return step if step.dim() == 2 else step[:, None]
@@ -118,7 +118,7 @@ def composite(sigma, step, t, background, colour_of=None, weight_threshold=0.0):
     weight above `weight_threshold` are coloured. background : (3,) or (R, 3).
     returns rgb (R, 3), depth (R,) (Σ w t / Σ w, 0 where nothing is hit), opacity (R,), weights (R, S)
     """
-    optical = sigma * _per_sample(step)
+    optical = sigma * per_sample(step)
     alpha = 1.0 - torch.exp(-optical)
     transmittance = torch.exp(-(torch.cumsum(optical, dim=-1) - optical))
     weights = transmittance * alpha
@@ -148,11 +148,29 @@ def distortion(weights, t, step, scale: float = 1.0):
     The double sum in O(S) with the samples in order along each ray (as sample_along_rays
     gives them; padding has weight 0): 2 Σᵢ wᵢ (mᵢ Σ_{j<i} wⱼ − Σ_{j<i} wⱼ mⱼ)."""
     middle = t / scale
-    width = _per_sample(step).expand_as(t) / scale
+    width = per_sample(step).expand_as(t) / scale
     before = torch.cumsum(weights, dim=-1) - weights
     moment_before = torch.cumsum(weights * middle, dim=-1) - weights * middle
     between = 2.0 * (weights * (middle * before - moment_before)).sum(dim=-1)
     return between + (weights.pow(2) * width).sum(dim=-1) / 3.0
+
+
+def median_depth(weights, t, length, opacity):
+    """(R,) the ray parameter t at which the ray has lost half the light it loses in all (0
+    where nothing is hit), each sample's weight spread evenly over the step centred on it.
+    Unlike Σ w t / Σ w, a faint haze in front of a surface (or a faint wall behind it) does not
+    move it off the surface.
+
+    weights, t : (R, S); length : (R, S)-broadcastable, the ray-parameter length of each step"""
+    weights = weights.detach()
+    cumulative = torch.cumsum(weights, dim=-1)
+    half = 0.5 * opacity.detach()[:, None]
+    index = (cumulative < half).sum(dim=-1, keepdim=True).clamp(max=t.shape[-1] - 1)
+    before = (cumulative - weights).gather(-1, index)
+    fraction = ((half - before) / weights.gather(-1, index).clamp(min=1e-12)).clamp(0.0, 1.0)
+    length = torch.broadcast_to(length, t.shape).gather(-1, index)
+    depth = (t.gather(-1, index) + (fraction - 0.5) * length)[:, 0]
+    return torch.where(opacity.detach() > 1e-6, depth, torch.zeros_like(depth))
 
 
 def render_samples(
@@ -206,7 +224,7 @@ def render_samples(
     if transmittance_threshold > 0 and len(query):
         with torch.no_grad():
             optical = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)
-            optical[rows, cols] = density(query) * _per_sample(samples.step, rows, cols)
+            optical[rows, cols] = density(query) * per_sample(samples.step, rows, cols)
             before = torch.cumsum(optical, dim=-1) - optical
             kept((before < -torch.log(torch.tensor(transmittance_threshold)))[rows, cols])
     sigma = torch.zeros(R, S, device=samples.t.device, dtype=samples.t.dtype)

@@ -297,6 +297,34 @@ def test_prompts_region_holds_a_cube_around_each_prompted_object(tmp_path):
     assert region == pytest.approx(box)
 
 
+def test_a_prompted_objects_cube_grows_with_its_inscribed_radius(tmp_path):
+    """With `inscribed_radius_px`, an object's cube is at least INSCRIBED_RADII of those radii
+    (at the object's depth in each view, the largest) in half-size; a small radius leaves the
+    margin."""
+    from fignetctl.core.nerf.region import INSCRIBED_RADII
+
+    _, _, cameras = write_synthetic_scene(tmp_path, width=64, height=48)
+    centre = np.array([0.1, 0.0, 0.05])
+    prompts = write_prompts(tmp_path / "prompts.json", cameras, {"a": tuple(centre)})
+    document = json.loads(prompts.read_text())
+    for point, radius in zip(document["objects"][0]["points"], (4.0, 6.0, 5.0)):
+        point["inscribed_radius_px"] = radius
+    prompts.write_text(json.dumps(document))
+    half = 0.0
+    for view, radius in zip((0, 3, 5), (4.0, 6.0, 5.0)):
+        depth = (np.linalg.inv(cameras.c2w[view]) @ [*centre, 1.0])[2]
+        half = max(
+            half, INSCRIBED_RADII * radius * depth / np.sqrt(cameras.K[view][0, 0] * cameras.K[view][1, 1])
+        )
+    assert half > 0.05
+    box = prompts_box(prompts, cameras, margin=0.05)
+    pixel = 3.0 / 30.0
+    assert box[1] - box[0] == pytest.approx([2 * half] * 3, abs=pixel)
+    assert box.mean(axis=0) == pytest.approx(centre, abs=pixel)
+    larger = prompts_box(prompts, cameras, margin=2 * half)  # the margin wins over the radii
+    assert larger[1] - larger[0] == pytest.approx([4 * half] * 3, abs=pixel)
+
+
 def test_prompts_that_do_not_meet_are_refused(tmp_path):
     _, _, cameras = write_synthetic_scene(tmp_path, width=64, height=48)
     prompts = write_prompts(tmp_path / "prompts.json", cameras, {"a": (0.0, 0.0, 0.0)})

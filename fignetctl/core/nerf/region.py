@@ -34,7 +34,7 @@ SUPPORT_TOLERANCE = 0.005
 MIN_SUPPORT_POINTS = 20
 MIN_REGION_SIDE = 0.005
 """A region's sides must be at least this fraction of the scene box's longest side."""
-INSCRIBED_RADII = 2.5
+INSCRIBED_RADII = 2.0
 """With prompts.json's `inscribed_radius_px`, an object's cube is at least this many of its
 inscribed radii (in world units at the triangulated point) in half-size."""
 

@@ -116,6 +116,26 @@ class ExtractionSettings:
     """When the object's decimated mesh is not closed (decimation pinches the handles a noisy
     field's tunnels give the surface), its solid is closed (`closed`) with 1, 2, ... up to
     this many voxels, filling gaps up to twice as wide, until the mesh is."""
+    outline_votes: int = 3
+    """With carving: the views nobody prompted carve the object too (`outline_masks`: GrabCut
+    masks drawn around the first mesh's outline), a point cut when this many of them put it
+    outside their masks; 0: only the prompted views carve. Three views at a slant see little of
+    an object's sides, so the field's bulges there stay in a hull of the prompted views alone."""
+    outline_margin: float = 1.0
+    """... each such mask cutting only points more than this many pixels (+ 0.5) outside it
+    (`carve`'s margin; their edge is GrabCut's alone, not also the masks' agreement)."""
+    outline_min_iou: float = 0.6
+    """... a view's GrabCut mask is used only where it overlaps that outline at least this much."""
+    outline_occluded: float = 0.02
+    """... and only where something in front of the object's box covers at most this fraction
+    of the outline (the rendered depth nearer than the box)."""
+    free_votes: int = 3
+    """With carving: the object's density is cut where this many views (prompted or not) see
+    the point more than `free_tolerance` in front of their first surface (`free_space`; 0: off):
+    what a hull from above cannot cut, such as a haze over an object's top."""
+    free_tolerance: float = 0.03
+    """... as a fraction of V_o's longest side (and at least the field's finest voxel: a
+    coarse field's depth scatters by about one, which would see through the object's own surface)."""
     fill_hidden: bool = True
     """With carving: the part of the visual hull that every view sees only through the object
     (`hidden`: behind the depth of its surface) is filled, so an object is solid where no view
@@ -602,17 +622,29 @@ def cut_at_support(density, box, settings: ExtractionSettings):
     return lower, upper, support
 
 
-def extract_object(density, box, settings: ExtractionSettings, views=()) -> Extraction:
+def extract_object(
+    density, box, settings: ExtractionSettings, views=(), outline_views=(), field_voxel=0.0
+) -> Extraction:
     """Object and environment meshes for the object in `box` (2, 3), e.g. from
     `object_box_from_points` or a user's --box. With masked `views`, the object's density is
-    carved to their visual hull first (`carve`, unless `carve_margin` is None) and filled where
-    no view saw inside it (`hidden`, with `fill_hidden`); when the decimated mesh is not
+    carved to their visual hull first (`carve`, unless `carve_margin` is None), and to where
+    fewer than `outline_votes` of the masked `outline_views` (`outline_masks`) put it outside,
+    cut where `free_votes` of all of them see through it (`free_space`; by more than the
+    field's `field_voxel`, about its depth's noise, too), and filled where no
+    prompted view saw inside it (`hidden`, with `fill_hidden`); when the decimated mesh is not
     closed, the solid's gaps are closed (`closed`, up to `max_close_voxels`)."""
     lower, upper, support = cut_at_support(density, box, settings)
     _, voxel = grid_axes(lower, upper, settings.resolution)
     values, axes = density_grid(density, lower, upper, settings)
     if views and settings.carve_margin is not None:
         inside = carve(axes, views, settings.carve_margin)
+        if settings.outline_votes > 0 and len(outline_views) >= settings.outline_votes:
+            inside = np.minimum(
+                inside, carve(axes, outline_views, settings.outline_margin, settings.outline_votes)
+            )
+        if settings.free_votes > 0:
+            tolerance = max(settings.free_tolerance * float(np.max(upper - lower)), field_voxel)
+            inside = inside * ~free_space(axes, [*views, *outline_views], tolerance, settings.free_votes)
         values = values * inside
         if settings.fill_hidden:
             solid = hidden(axes, views, 2 * voxel) & (inside >= 0.5)
@@ -698,6 +730,8 @@ class View:
 
     depth : (H, W) z-depth; opacity : (H, W) or None; image : (H, W, 3) uint8 RGB or None
     prompts : list of (u, v) pixels on the object; mask : (H, W) bool or None (given by the user)
+    surface : (H, W) z-depth of the first surface (a NeRF's median depth: where a ray has lost
+    half its light; 0: unknown) or None, for `free_space`
     """
 
     name: str
@@ -708,6 +742,7 @@ class View:
     image: np.ndarray | None = None
     prompts: list = dataclasses.field(default_factory=list)
     mask: np.ndarray | None = None
+    surface: np.ndarray | None = None
 
 
 def view_masks(views, segmentation_settings=None):
@@ -858,12 +893,8 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
         if view.image is None or not view.prompts:
             continue
         splat = _splat(points, view, view.mask.shape)
-        labels = np.full(splat.shape, cv2.GC_BGD, np.uint8)
-        margin = max(2, int(round(settings.hull_mask_margin * np.sqrt(splat.sum()))))
-        ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
-        labels[cv2.dilate(splat.astype(np.uint8), ring).astype(bool)] = cv2.GC_PR_BGD
+        labels, _ = _trimap(splat, settings.hull_mask_margin)
         labels[_far_from(points, view, labels == cv2.GC_PR_BGD, reach)] = cv2.GC_BGD
-        labels[splat] = cv2.GC_PR_FGD
         labels[cv2.erode(splat.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool) & view.mask] = (
             cv2.GC_FGD
         )
@@ -871,6 +902,20 @@ def hull_masks(density, box, views, settings: ExtractionSettings):
             continue
         view.mask = fill_holes(grabcut(view.image, labels, 5), HOLE_FRACTION)
     return views
+
+
+def _trimap(splat, ring_fraction):
+    """(GrabCut labels (H, W) uint8, ring width px) around a splat of an object (H, W) bool:
+    the splat probable foreground, a ring around it as wide as `ring_fraction` of its size
+    (√area, at least 2 px) probable background, the rest background."""
+    import cv2
+
+    margin = max(2, int(np.rint(ring_fraction * np.sqrt(splat.sum()))))
+    ring = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1,) * 2)
+    labels = np.full(splat.shape, cv2.GC_BGD, np.uint8)
+    labels[cv2.dilate(splat.astype(np.uint8), ring).astype(bool)] = cv2.GC_PR_BGD
+    labels[splat] = cv2.GC_PR_FGD
+    return labels, margin
 
 
 def _far_from(points, view, candidates, reach, samples=24):
@@ -899,12 +944,13 @@ def _far_from(points, view, candidates, reach, samples=24):
     return far
 
 
-def carve(axes, views, margin) -> np.ndarray:
+def carve(axes, views, margin, votes=1) -> np.ndarray:
     """(X, Y, Z) factors in [0, 1] on the grid of `axes`: 1 where a grid point projects inside
     every view's mask (or within `margin` pixels of it), 0 where it projects further than
     margin + 0.5 px outside one, a linear ramp between (so the surface of density × factor
     keeps sub-pixel positions). Views a point projects outside of (or lies behind) do not
-    constrain it.
+    constrain it. With `votes` > 1 a point is cut only as far as the `votes`-th view against
+    it cuts it (masks that each err somewhere cut only where several agree).
 
     A visual hull: the NeRF's density around an object holds a halo and pieces of what touches
     it (the tray's rim, a shadow), which marching cubes would add to the mesh; the masks say
@@ -915,7 +961,7 @@ def carve(axes, views, margin) -> np.ndarray:
 
     shape = tuple(len(a) for a in axes)
     points = grid_points(axes)
-    factor = np.ones(len(points), np.float32)
+    lowest = np.ones((max(int(votes), 1), len(points)), np.float32)  # each point's smallest factors
     for view in views:
         mask = np.asarray(view.mask, bool)
         outside = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
@@ -926,8 +972,78 @@ def carve(axes, views, margin) -> np.ndarray:
         height, width = mask.shape
         seen = (depth > 1e-9) & (u >= -0.5) & (u <= width - 0.5) & (v >= -0.5) & (v <= height - 0.5)
         distance = ndimage.map_coordinates(beyond, [v[seen], u[seen]], order=1, mode="nearest")
-        factor[seen] = np.minimum(factor[seen], np.clip(margin + 0.5 - distance, 0.0, 1.0))
-    return factor.reshape(shape)
+        factor = np.ones(len(points), np.float32)
+        factor[seen] = np.clip(margin + 0.5 - distance, 0.0, 1.0)
+        lowest = np.sort(np.vstack([lowest, factor[None]]), axis=0)[:-1]
+    return lowest[-1].reshape(shape)
+
+
+def outline_masks(mesh, views, box, settings: ExtractionSettings) -> list:
+    """Masks for views nobody prompted, drawn around the object mesh's outline: for each view
+    (with its image, and its depth where the outline and a ring around it fall) whose outline
+    of the world `mesh` lies inside the image and is not covered by anything nearer than the
+    object's `box` (2, 3) (at most `outline_occluded` of it), GrabCut settles the edge from
+    colour, with the outline as probable foreground, its core as certain foreground and a ring
+    as probable background. A mask is kept when it overlaps the outline by `outline_min_iou`.
+    Returns copies of the views kept, with their masks."""
+    import cv2
+
+    from fignetctl.core.segmentation import fill_holes, grabcut, iou
+
+    corners = np.array(np.meshgrid(*np.asarray(box, np.float64).T, indexing="ij")).reshape(3, -1).T
+    tolerance = 0.05 * float(np.max(np.asarray(box)[1] - np.asarray(box)[0]))
+    kept = []
+    for view in views:
+        shape = view.image.shape[:2]
+        drawn = silhouette(mesh.vertices, mesh.faces, view, shape)
+        if None in bounding_extent(drawn) or drawn.sum() < OUTLINE_PIXELS:
+            continue
+        near = pinhole.project(view.K, view.c2w, corners)[1].min()
+        depth = view.depth[drawn]
+        if near <= 0 or np.mean((depth > 0) & (depth < near - tolerance)) > settings.outline_occluded:
+            continue
+        labels, margin = _trimap(drawn, settings.hull_mask_margin)
+        inner = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * (margin // 2) + 1,) * 2)
+        labels[cv2.erode(drawn.astype(np.uint8), inner).astype(bool)] = cv2.GC_FGD
+        if not (labels == cv2.GC_FGD).any():
+            continue
+        rows, columns = np.nonzero(labels != cv2.GC_BGD)
+        window = np.s_[
+            max(rows.min() - margin, 0) : rows.max() + margin + 1,
+            max(columns.min() - margin, 0) : columns.max() + margin + 1,
+        ]
+        mask = np.zeros(shape, bool)
+        mask[window] = fill_holes(grabcut(view.image[window], labels[window], 5), HOLE_FRACTION)
+        if iou(mask, drawn) >= settings.outline_min_iou:
+            kept.append(dataclasses.replace(view, mask=mask, prompts=[]))
+    return kept
+
+
+OUTLINE_PIXELS = 64
+"""`outline_masks` passes over views where the object's outline covers fewer pixels."""
+
+
+def free_space(axes, views, tolerance, votes, share=0.0, erosion=2) -> np.ndarray:
+    """(X, Y, Z) bool on the grid of `axes`: points more than `tolerance` in front of the first
+    surface (`View.surface`) in at least `votes` of the `views` and in at least `share` of those
+    that see them, counted only at pixels inside the view's mask shrunk by `erosion` px (at a
+    mask's edge the surface may be what lies behind the object). Space a view sees through to a
+    surface behind it is empty."""
+    import cv2
+
+    shape = tuple(len(a) for a in axes)
+    points = grid_points(axes)
+    count, seen = np.zeros(len(points), np.int32), np.zeros(len(points), np.int32)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erosion + 1,) * 2)
+    for view in views:
+        if view.surface is None or view.mask is None:
+            continue
+        core = cv2.erode(np.asarray(view.mask, np.uint8), kernel).astype(bool) & (view.surface > 0)
+        u, v, keep, depth = _pixels(points, view, core.shape)
+        keep[keep] = core[v[keep], u[keep]]
+        count[keep] += depth[keep] < view.surface[v[keep], u[keep]] - tolerance
+        seen += keep
+    return ((count >= votes) & (count >= share * seen)).reshape(shape)
 
 
 def hidden(axes, views, tolerance) -> np.ndarray:

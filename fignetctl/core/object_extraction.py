@@ -22,6 +22,8 @@ from fignetctl.core.mesh_extraction import (
     extract_object,
     mask_agreement,
     outline_extents,
+    outline_masks,
+    silhouette,
     view_masks,
 )
 from fignetctl.errors import FignetError, FormatError
@@ -42,11 +44,14 @@ class ObjectExtraction:
 
 
 def extract(
-    density, settings: ExtractionSettings, views=(), box=None, segmentation=None, voxel=None
+    density, settings: ExtractionSettings, views=(), box=None, segmentation=None, voxel=None, more_views=None
 ) -> ObjectExtraction:
     """The object given by `views` (View, with prompts or masks; masks are made from prompts by
     `segmentation`) or by `box` (x0, y0, z0, x1, y1, z1), meshed from `density` with its
-    environment; the mesh's outline is checked against the masks (`check_mask_agreement`: IoU,
+    environment. `more_views(mesh)`, when given, returns the views nobody prompted (View with
+    image and depth around the world `mesh`'s outline, `unprompted_views`): their masks, drawn
+    around the first mesh's outline (`outline_masks`), carve the object again (`outline_votes`).
+    The mesh's outline is checked against the prompted views' masks (`check_mask_agreement`: IoU,
     `check_outline_extents`: width and height per view), and warnings are logged (and listed in
     checks["warnings"]) for an outline off the masks, a mesh that is not watertight, and a field
     whose finest `voxel` (world units, when known) is coarse for the object's size."""
@@ -59,7 +64,23 @@ def extract(
         views = view_masks(list(views), segmentation)
         box = consistent_box(density, views, settings)
     settings, threshold = _threshold(density, box, views, settings)
-    extraction = extract_object(density, box, settings, views)
+    extraction = extract_object(density, box, settings, views, field_voxel=voxel or 0.0)
+    outline = {}
+    if views and more_views is not None and settings.carve_margin is not None and settings.outline_votes > 0:
+        candidates = more_views(extraction.object_mesh)
+        extracted_box = np.stack([extraction.lower, extraction.upper])
+        masked = outline_masks(extraction.object_mesh, candidates, extracted_box, settings)
+        outline = {"candidates": len(candidates), "used": [view.name for view in masked]}
+        if len(masked) >= settings.outline_votes:
+            extraction = extract_object(density, box, settings, views, masked, voxel or 0.0)
+        log.info(
+            "%d of %d views nobody prompted have a clear mask of the object%s",
+            len(masked),
+            len(candidates),
+            f"; where {settings.outline_votes} of them agree, they carve it too"
+            if len(masked) >= settings.outline_votes
+            else f" (under {settings.outline_votes}): only the prompted views carve it",
+        )
     agreement = {
         name: round(value, 3) for name, value in mask_agreement(extraction.object_mesh, views).items()
     }
@@ -75,8 +96,39 @@ def extract(
         "watertight": bool(extraction.object_mesh.is_watertight),
         "threshold": settings.threshold,
         "threshold_choice": threshold,
+        "outline_views": outline,
     }
     return ObjectExtraction(extraction, settings, views, checks)
+
+
+def unprompted_views(cameras, model, read_image, skip=()):
+    """`extract`'s `more_views`: a function of the world mesh giving a View of every camera
+    not in `skip` (indices) that the mesh's outline falls in, with its image (`read_image(index)`,
+    RGB uint8) and the NeRF `model`'s depth rendered around the outline (0 elsewhere)."""
+    import cv2
+
+    def views(mesh):
+        result = []
+        shape = (int(cameras.height), int(cameras.width))
+        for index in range(len(cameras)):
+            if index in skip:
+                continue
+            view = View(
+                str(cameras.image_names[index]), cameras.K[index], cameras.c2w[index], np.zeros(shape)
+            )
+            drawn = silhouette(mesh.vertices, mesh.faces, view, shape)
+            if not drawn.any():
+                continue
+            margin = max(2, int(np.rint(0.5 * np.sqrt(drawn.sum()))))
+            near = cv2.dilate(drawn.astype(np.uint8), np.ones((2 * margin + 1,) * 2, np.uint8)).astype(bool)
+            rendering = model.render(cameras, index, pixels=near)
+            view.depth = np.where(rendering.opacity > 0.5, rendering.median_depth, 0.0)
+            view.surface = view.depth
+            view.image = read_image(index)
+            result.append(view)
+        return result
+
+    return views
 
 
 def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
@@ -132,9 +184,10 @@ def prompted_view(index, cameras, model, depth_images=None, image=None) -> View:
     name = str(cameras.image_names[index])
     if depth_images is not None:
         return View(name, cameras.K[index], cameras.c2w[index], depth_images[index], None, image)
-    rendering = model.render(cameras, index)  # its depth is already Σ w t / Σ w
+    rendering = model.render(cameras, index)
     depth = np.where(rendering.opacity > 0.5, rendering.depth, 0.0)
-    return View(name, cameras.K[index], cameras.c2w[index], depth, rendering.opacity, image)
+    surface = np.where(rendering.opacity > 0.5, rendering.median_depth, 0.0)
+    return View(name, cameras.K[index], cameras.c2w[index], depth, rendering.opacity, image, surface=surface)
 
 
 def view_index(text, cameras) -> int:

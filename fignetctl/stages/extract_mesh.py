@@ -44,7 +44,16 @@ class Settings:
         None, "Environment box: above the support.  [default: V_o's height]", low=0, low_open=True
     )
     carve: bool = setting(
-        True, "Cut the object's density to the masks' visual hull, and fill what no view saw inside it."
+        True,
+        "Cut the object's density to the masks' visual hull and to what the views see through, and fill "
+        "what no view saw inside it.",
+    )
+    outline_votes: int = setting(
+        3,
+        "With --carve: the views nobody prompted carve the object too where this many of them agree "
+        "(masks drawn around the first mesh's outline); 0: only the prompted views carve.",
+        low=0,
+        high=100,
     )
     max_voxel: float = setting(
         0.35,
@@ -97,6 +106,7 @@ def run(
         passive_above=settings.passive_above,
         carve_margin=ExtractionSettings.carve_margin if settings.carve else None,
         max_voxel=settings.max_voxel,
+        outline_votes=settings.outline_votes,
     )
     inputs = ExtractionInputs(
         nerf=nerf,
@@ -140,7 +150,7 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
 
     from fignetctl.core.cameras import read_cameras
     from fignetctl.core.nerf.io import load_nerf
-    from fignetctl.core.object_extraction import extract
+    from fignetctl.core.object_extraction import extract, unprompted_views
     from fignetctl.core.provenance import stamp
     from fignetctl.core.segmentation import SegmentationSettings
 
@@ -151,7 +161,13 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
     # a coarse field's depth scatters by about a voxel: the masks' plane fits allow for it
     segmentation = dataclasses.replace(segmentation or SegmentationSettings(), depth_noise=voxel)
     views = [] if inputs.box is not None else _views(inputs, cameras, model)
-    result = extract(model.density, settings, views, inputs.box, segmentation, voxel)
+    more_views = None
+    if views and not inputs.masks_dir:
+        image_dir = _image_dir(inputs, cameras)
+        prompted = {cameras.index_of(view.name) for view in views}
+        read = lambda index: _read_image(image_dir / str(cameras.image_names[index]), cameras)
+        more_views = unprompted_views(cameras, model, read, prompted)
+    result = extract(model.density, settings, views, inputs.box, segmentation, voxel, more_views)
     extraction, views, checks = result.extraction, result.views, result.checks
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
     provenance = stamp(

@@ -75,6 +75,11 @@ def test_prompts_json_to_meshes(capture, tmp_path):
     assert set(extents) == set(summary["mask_iou"]) and volume.settings["outline_extent_px"] == extents
     pairs = [pair for axes in extents.values() for pair in axes.values()]
     assert pairs and all(abs(drawn / masked - 1) <= 0.5 for drawn, masked in pairs), extents
+    # the views nobody prompted: masks drawn around the first mesh's outline, recorded by name
+    outline = summary["outline_views"]
+    assert 3 <= len(outline["used"]) <= outline["candidates"], outline
+    assert not set(outline["used"]) & set(summary["mask_iou"])
+    assert volume.settings["outline_views"] == outline
     assert isinstance(summary["warnings"], list)
     assert (f"; {len(summary['warnings'])} warning" in result.output) == bool(summary["warnings"])
     obj = trimesh.load(tmp_path / "out" / "object.obj", force="mesh")

@@ -592,6 +592,110 @@ def test_carving_cuts_the_field_to_the_masks_visual_hull():
     assert np.all(factor[inside] > 0.5)
 
 
+def test_carving_by_votes_cuts_as_the_nth_view_against_a_point_does():
+    """With votes n, each point's factor is the n-th smallest of the factors each view alone
+    gives it (brute force over the views one by one); n = 1 is the plain visual hull, and a
+    mask that lost half the ball cuts it only where enough views agree."""
+    centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
+    _, views = _ball_views(centre, radius)
+    views[1].mask[:, :80] = False  # this view's mask misses the ball's left half
+    axes, _ = mx.grid_axes([-0.3, -0.3, -0.02], [0.3, 0.3, 0.45], 20)
+    alone = np.sort([mx.carve(axes, [view], 0.5).reshape(-1) for view in views], axis=0)
+    for votes in (1, 2, 3):
+        np.testing.assert_array_equal(mx.carve(axes, views, 0.5, votes).reshape(-1), alone[votes - 1])
+    points = mx.grid_points(axes)
+    in_ball = np.linalg.norm(points - centre, axis=1) < radius - 0.03
+    assert mx.carve(axes, views, 0.5, 1).reshape(-1)[in_ball].min() == 0.0  # the bad mask cut it
+    assert mx.carve(axes, views, 0.5, 2).reshape(-1)[in_ball].min() == 1.0  # outvoted
+
+
+def test_free_space_is_what_enough_views_see_through_to_a_surface_behind():
+    """A field holding a ball under a haze 4 cm thick on its top (as a NeRF leaves over an
+    object seen from above, inside every view's outline): the haze is in front of the surface
+    every view sees there, so it is free space, and over its axis the mesh ends at the ball's
+    top; without it the haze is in the mesh. Points of the ball itself are never free."""
+    centre, radius = np.array([0.0, 0.0, 0.2]), 0.2
+
+    def ball_under_haze(points):
+        p = np.asarray(points)
+        distance = np.linalg.norm(p - centre, axis=1)
+        haze = (distance < radius + 0.04) & (np.linalg.norm(p[:, :2] - centre[:2], axis=1) < 0.1)
+        floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
+        return np.where((distance < radius) | floor, 3000.0, np.where(haze, 1200.0, 0.0))
+
+    truth, views = _ball_views(centre, radius, ([0.5, -0.35, 1.2], [0.0, -0.6, 1.2], [-0.45, 0.35, 1.2]))
+    for view in views:
+        view.depth = view.surface = _sphere_depth(view, centre, radius)
+    box = np.array([[-0.3, -0.3, -0.02], [0.3, 0.3, 0.5]])
+    settings = mx.ExtractionSettings(
+        resolution=48, threshold=1000.0, faces=0, free_votes=2, free_tolerance=0.01
+    )
+    cleared = mx.extract_object(ball_under_haze, box, settings, views).object_mesh
+    hazy = mx.extract_object(
+        ball_under_haze, box, dataclasses.replace(settings, free_votes=0), views
+    ).object_mesh
+    voxel = 0.52 / 47
+
+    def top(mesh):  # the mesh's height over the ball's axis
+        near_axis = np.linalg.norm(mesh.vertices[:, :2] - centre[:2], axis=1) < 0.03
+        return mesh.vertices[near_axis, 2].max()
+
+    assert top(hazy) > centre[2] + radius + 0.03
+    assert top(cleared) < centre[2] + radius + voxel
+    assert truth.volume < cleared.volume < hazy.volume
+    axes, _ = mx.grid_axes(box[0], box[1], 32)
+    points = mx.grid_points(axes)
+    free = mx.free_space(axes, views, 0.01, 2).reshape(-1)
+    distance = np.linalg.norm(points - centre, axis=1)
+    assert not free[distance < radius - 0.01].any()
+    above = (distance > radius + 0.01) & (np.linalg.norm(points[:, :2], axis=1) < 0.08) & (points[:, 2] > 0.3)
+    above &= points[:, 2] < 0.43
+    assert above.sum() > 20 and free[above].mean() > 0.9
+    assert mx.free_space(axes, views, 0.01, 4).sum() == 0  # three views cannot give four votes
+
+
+def test_masks_drawn_around_an_outline_find_the_objects_edge_and_skip_hidden_views():
+    """A red cube on a grey, speckled table seen from four sides, and a mesh of it 20 % too
+    wide (a field's bulge): GrabCut, seeded with the wide mesh's outline, draws masks that
+    match the cube's true outline much better than that outline does; a view where something
+    stands in front of the cube is passed over, as is one that sees the cube only in part."""
+    import trimesh
+
+    from fignetctl.core import pinhole
+    from fignetctl.core.segmentation import iou
+
+    cube = trimesh.creation.box([0.2, 0.2, 0.2])
+    cube.apply_translation([0, 0, 0.1])
+    wide = cube.copy()
+    wide.apply_scale(1.2)
+    wide.apply_translation([0, 0, 0.1 - wide.bounds[0][2] - 0.1])
+    rng = np.random.default_rng(0)
+    K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
+    views, truths = [], []
+    for eye in ([0.9, -0.6, 0.7], [0.0, -1.0, 0.6], [-0.7, 0.6, 0.8], [0.6, 0.8, 0.5]):
+        view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, [0, 0, 0.1]), np.full((120, 160), 5.0))
+        truth = mx.silhouette(cube.vertices, cube.faces, view, (120, 160))
+        image = rng.normal(128, 12, (120, 160, 3)).clip(0, 255).astype(np.uint8)
+        image[truth] = [200, 30, 30]
+        view.image = image
+        views.append(view)
+        truths.append(truth)
+    views[2].depth[40:80, 60:100] = 0.3  # something right in front of the camera
+    views[3].image = views[3].image.copy()
+    box = np.array([[-0.13, -0.13, 0.0], [0.13, 0.13, 0.25]])
+    settings = mx.ExtractionSettings()
+    shifted = dataclasses.replace(
+        views[3], K=K - [[0, 0, 80], [0, 0, 0], [0, 0, 0]], name="cut"
+    )  # cube at its edge
+    masked = mx.outline_masks(wide, [*views, shifted], box, settings)
+    assert [view.name for view in masked] == [views[0].name, views[1].name, views[3].name]
+    for view in masked:
+        truth = truths[[v.name for v in views].index(view.name)]
+        outline = mx.silhouette(wide.vertices, wide.faces, view, truth.shape)
+        assert iou(view.mask, truth) > 0.95 > iou(outline, truth) + 0.1
+        assert view.prompts == []
+
+
 def cv2_dilate(mask, pixels):
     import cv2
 
@@ -644,9 +748,9 @@ def _sphere_depth(view, centre, radius, floor=0.0):
     return np.where(np.isfinite(t), t, 0.0)  # the directions have z-depth 1: t is the z-depth
 
 
-def _ball_views(centre, radius):
-    """(the ball's mesh, three 160×120 views looking at its centre from above, each masked with
-    the ball's outline; their depth is a placeholder of ones)."""
+def _ball_views(centre, radius, eyes=([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8])):
+    """(the ball's mesh, 160×120 views from `eyes` (three from above) looking at its centre,
+    each masked with the ball's outline; their depth is a placeholder of ones)."""
     import trimesh
 
     from fignetctl.core import pinhole
@@ -654,7 +758,7 @@ def _ball_views(centre, radius):
     truth = trimesh.creation.icosphere(subdivisions=4, radius=radius)
     truth.apply_translation(centre)
     views = []
-    for eye in ([0.9, -0.6, 0.9], [0.0, -1.0, 0.8], [-0.7, 0.6, 0.8]):
+    for eye in eyes:
         K = np.array([[120.0, 0, 80], [0, 120.0, 60], [0, 0, 1]])
         view = mx.View(f"view at {eye}", K, pinhole.look_at(eye, centre), np.ones((120, 160)))
         view.mask = mx.silhouette(truth.vertices, truth.faces, view, view.depth.shape)
@@ -771,7 +875,8 @@ def test_closing_fills_narrow_tunnels_and_bubbles_but_not_a_wide_hole():
 
 def test_a_prompted_views_depth_is_the_rendered_expected_depth():
     """Where a ray is partly transparent its depth is Σ w t / Σ w, not that divided again by the
-    opacity (which pushed the masks' depth behind the surface and split them)."""
+    opacity (which pushed the masks' depth behind the surface and split them); its surface is
+    the median depth."""
     import math
 
     import torch
@@ -795,3 +900,6 @@ def test_a_prompted_views_depth_is_the_rendered_expected_depth():
     expected = 2.0 + 1 / sigma - chord * math.exp(-sigma * chord) / (1 - math.exp(-sigma * chord))
     assert view.opacity[11:13, 15:17] == pytest.approx(1 - math.exp(-sigma * chord), abs=0.01)
     assert view.depth[11:13, 15:17] == pytest.approx(expected, abs=0.02)
+    # its surface (for free space) is where the ray has lost half of its light: 1 − e^{−σ s} = opacity / 2
+    half = 2.0 - math.log(1 - 0.5 * (1 - math.exp(-sigma * chord))) / sigma
+    assert view.surface[11:13, 15:17] == pytest.approx(half, abs=0.02)

@@ -982,10 +982,10 @@ def outline_masks(mesh, views, box, settings: ExtractionSettings) -> list:
     """Masks for views nobody prompted, drawn around the object mesh's outline: for each view
     (with its image, and its depth where the outline and a ring around it fall) whose outline
     of the world `mesh` lies inside the image and is not covered by anything nearer than the
-    object's `box` (2, 3) (at most `outline_occluded` of it), GrabCut settles the edge from
-    colour, with the outline as probable foreground, its core as certain foreground and a ring
-    as probable background. A mask is kept when it overlaps the outline by `outline_min_iou`.
-    Returns copies of the views kept, with their masks."""
+    object's `box` (2, 3) by 5 % of its longest side (at most `outline_occluded` of it),
+    GrabCut settles the edge from colour, with the outline as probable foreground, its core as
+    certain foreground and a ring as probable background. A mask is kept when it overlaps the
+    outline by `outline_min_iou`. Returns copies of the views kept, with their masks."""
     import cv2
 
     from fignetctl.core.segmentation import fill_holes, grabcut, iou
@@ -1023,17 +1023,16 @@ OUTLINE_PIXELS = 64
 """`outline_masks` passes over views where the object's outline covers fewer pixels."""
 
 
-def free_space(axes, views, tolerance, votes, share=0.0, erosion=2) -> np.ndarray:
+def free_space(axes, views, tolerance, votes, erosion=2) -> np.ndarray:
     """(X, Y, Z) bool on the grid of `axes`: points more than `tolerance` in front of the first
-    surface (`View.surface`) in at least `votes` of the `views` and in at least `share` of those
-    that see them, counted only at pixels inside the view's mask shrunk by `erosion` px (at a
-    mask's edge the surface may be what lies behind the object). Space a view sees through to a
-    surface behind it is empty."""
+    surface (`View.surface`) in at least `votes` of the `views`, counted only at pixels inside
+    the view's mask shrunk by `erosion` px (at a mask's edge the surface may be what lies
+    behind the object). Space a view sees through to a surface behind it is empty."""
     import cv2
 
     shape = tuple(len(a) for a in axes)
     points = grid_points(axes)
-    count, seen = np.zeros(len(points), np.int32), np.zeros(len(points), np.int32)
+    count = np.zeros(len(points), np.int32)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erosion + 1,) * 2)
     for view in views:
         if view.surface is None or view.mask is None:
@@ -1042,8 +1041,7 @@ def free_space(axes, views, tolerance, votes, share=0.0, erosion=2) -> np.ndarra
         u, v, keep, depth = _pixels(points, view, core.shape)
         keep[keep] = core[v[keep], u[keep]]
         count[keep] += depth[keep] < view.surface[v[keep], u[keep]] - tolerance
-        seen += keep
-    return ((count >= votes) & (count >= share * seen)).reshape(shape)
+    return (count >= votes).reshape(shape)
 
 
 def hidden(axes, views, tolerance) -> np.ndarray:

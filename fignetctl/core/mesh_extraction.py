@@ -246,8 +246,8 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     """z of the highest surface under the box's footprint, from vertical density profiles on
     the ring just outside the footprint (median over the ring); None if there is none.
 
-    A profile's surface is the top of its highest peak (`_top_of_peak`: where the density falls
-    below `SUPPORT_LEVEL` of the peak above it), so a support the field holds only faintly (a shiny tray floor, a smear of density below
+    A profile's surface is the highest z where its density is at least `SUPPORT_LEVEL` of the
+    profile's peak, so a support the field holds only faintly (a shiny tray floor, a smear of density below
     `threshold`) is found as well as a solid one; profiles that peak below a tenth of
     `threshold` have no surface.
 
@@ -261,20 +261,14 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     points = np.concatenate([np.repeat(ring, len(z), axis=0), np.tile(z, len(ring))[:, None]], axis=1)
     values = np.nan_to_num(np.asarray(density(points), np.float64).reshape(len(ring), len(z)))
     peaks = values.max(axis=1)
-    heights = [_top_of_peak(z, column, peak) for column, peak in zip(values, peaks) if peak > 0.1 * threshold]
+    heights = [
+        z[np.nonzero(column >= SUPPORT_LEVEL * peak)[0].max()]
+        for column, peak in zip(values, peaks)
+        if peak > 0.1 * threshold
+    ]
     if len(heights) < len(ring) // 3:
         return None
     return float(np.median(heights))
-
-
-def _top_of_peak(z, column, peak):
-    """The top of a profile's highest peak: from the highest z within 10 % of `peak`, up while
-    the density stays at least `SUPPORT_LEVEL` of it (a surface above that the profile meets
-    later, such as the object's own halo beside it, does not count)."""
-    top = int(np.nonzero(column >= 0.9 * peak)[0].max())
-    while top + 1 < len(column) and column[top + 1] >= SUPPORT_LEVEL * peak:
-        top += 1
-    return z[top]
 
 
 def _footprint_ring(low, high, per_side):

@@ -235,19 +235,12 @@ def sample_density(density, axes, chunk=262144):
     return values.reshape(shape)
 
 
-SUPPORT_LEVEL = 0.7
-"""`support_height`: a profile's surface is the highest z where its density is at least this
-fraction of the profile's peak. At 0.9 it was the peak itself, which a coarse grid holds at a
-vertex: on the bundled capture's 13.8 mm field 4-5 mm under the tray floor, so every object
-came out that much too tall; at 0.5 it was as far above."""
-
-
 def support_height(density, lower, upper, threshold, resolution, depth_below):
     """z of the highest surface under the box's footprint, from vertical density profiles on
     the ring just outside the footprint (median over the ring); None if there is none.
 
-    A profile's surface is the highest z where its density is at least `SUPPORT_LEVEL` of the
-    profile's peak, so a support the field holds only faintly (a shiny tray floor, a smear of density below
+    A profile's surface is the highest z where its density is within 10% of the profile's peak,
+    so a support the field holds only faintly (a shiny tray floor, a smear of density below
     `threshold`) is found as well as a solid one; profiles that peak below a tenth of
     `threshold` have no surface.
 
@@ -262,7 +255,7 @@ def support_height(density, lower, upper, threshold, resolution, depth_below):
     values = np.nan_to_num(np.asarray(density(points), np.float64).reshape(len(ring), len(z)))
     peaks = values.max(axis=1)
     heights = [
-        z[np.nonzero(column >= SUPPORT_LEVEL * peak)[0].max()]
+        z[np.nonzero(column >= 0.9 * peak)[0].max()]
         for column, peak in zip(values, peaks)
         if peak > 0.1 * threshold
     ]

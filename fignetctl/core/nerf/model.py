@@ -140,18 +140,19 @@ class NerfModel(nn.Module):
         weight_threshold=None,
         transmittance_threshold=0.0,
         with_distortion=False,
+        with_median=False,
     ):
         """Volume-render rays (R, 3) + (R, 3) (torch, any direction length).
 
         warp(points (P,3)) -> points (P,3) (or (points, directions)) is applied to every sample
         point before the field is queried (ray bending). Returns a dict of tensors:
         rgb (R, 3), depth (R,) the expected ray parameter t of the surface (z-depth for
-        camera rays from `render`), median_depth (R,) (`renderer.median_depth`), distance (R,)
-        = depth · |d|, opacity (R,). Samples whose
+        camera rays from `render`), distance (R,) = depth · |d|, opacity (R,). Samples whose
         compositing weight is below `weight_threshold` (default: the config's) get no colour;
         with `transmittance_threshold` > 0, samples behind which less light is left are dropped.
         `with_distortion`: also distortion (R,), renderer.distortion of each ray's weights, its
         distances in units of the scene box's longest side (what training penalises).
+        `with_median`: also median_depth (R,) (`renderer.median_depth`, in ray-parameter units).
         """
         if chunk is not None and len(origins) > chunk:
             parts = [
@@ -165,6 +166,7 @@ class NerfModel(nn.Module):
                     weight_threshold,
                     transmittance_threshold,
                     with_distortion,
+                    with_median,
                 )
                 for o, d, j in zip(
                     origins.split(chunk),
@@ -189,14 +191,10 @@ class NerfModel(nn.Module):
             transmittance_threshold,
         )
         norms = directions.norm(dim=-1)
-        lengths = per_sample(samples.step) / norms[:, None]  # each step in ray-parameter units
-        out = {
-            "rgb": rgb,
-            "depth": depth,
-            "median_depth": median_depth(weights, samples.t, lengths, opacity),
-            "distance": depth * norms,
-            "opacity": opacity,
-        }
+        out = {"rgb": rgb, "depth": depth, "distance": depth * norms, "opacity": opacity}
+        if with_median:
+            lengths = per_sample(samples.step) / norms[:, None]  # each step in ray-parameter units
+            out["median_depth"] = median_depth(weights, samples.t, lengths, opacity)
         if with_distortion:
             scale = float((high - low).max())
             out["distortion"] = distortion(weights, samples.t * norms[:, None], samples.step, scale)
@@ -212,7 +210,7 @@ class NerfModel(nn.Module):
         device = self.field.density_grid.device
         o = torch.as_tensor(origins[chosen], dtype=torch.float32, device=device)
         d = torch.as_tensor(directions[chosen], dtype=torch.float32, device=device)
-        out = self.render_rays(o, d, warp=warp, chunk=chunk)
+        out = self.render_rays(o, d, warp=warp, chunk=chunk, with_median=True)
 
         def as_image(x, *shape):
             image = np.zeros((height, width, *shape), np.float32)

@@ -974,7 +974,8 @@ def carve(axes, views, margin, votes=1) -> np.ndarray:
         distance = ndimage.map_coordinates(beyond, [v[seen], u[seen]], order=1, mode="nearest")
         factor = np.ones(len(points), np.float32)
         factor[seen] = np.clip(margin + 0.5 - distance, 0.0, 1.0)
-        lowest = np.sort(np.vstack([lowest, factor[None]]), axis=0)[:-1]
+        for row in lowest:  # insert into the sorted rows, the largest falling out
+            row[:], factor = np.minimum(row, factor), np.maximum(row, factor)
     return lowest[-1].reshape(shape)
 
 

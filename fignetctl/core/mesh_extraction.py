@@ -75,6 +75,11 @@ class ExtractionSettings:
     """... and this far above it (None: V_o's height)."""
     hull_resolution: int = 64
     """Grid vertices along the longest side of the masks' box for the visual-hull refinement (0: off)."""
+    hull_reach: float = 0.25
+    """The visual hull is sought in the masks' box grown by this fraction of its longest side
+    (`search_box`): the masks' depth points are trimmed (`trim_percent`), and an object's corner
+    seen at a slant holds few of them, so their box can fall short of the object by more than
+    its padding (the room's brick: 17 mm, 19 % of its length)."""
     hull_dilation: int = 3
     """Pixels each mask is grown by before the hull test, so a mask a little short of the object's edge cuts nothing off."""
     hull_mask_margin: float = 0.3
@@ -783,16 +788,29 @@ def hull_grid(density, box, settings: ExtractionSettings):
 
 
 def consistent_box(density, views, settings: ExtractionSettings):
-    """V_o from the views' masks, the masks made to agree: the masks' box (`object_box_from_views`),
-    narrowed to their visual hull (`hull_box`), the masks redrawn from it (`hull_masks`), and
-    the hull taken again with the new masks. The views' masks are replaced."""
+    """V_o from the views' masks, the masks made to agree: their visual hull (`hull_box`) sought
+    in the masks' box (`object_box_from_views`) grown by `hull_reach` (`search_box`), the masks
+    redrawn from it (`hull_masks`), and the hull taken again with the new masks. The views'
+    masks are replaced."""
     coarse = object_box_from_views(views, settings)
     if settings.hull_resolution <= 0 or len(views) < 2:
         return coarse
-    grid = hull_grid(density, coarse, settings)
-    box, level = hull_box(density, coarse, views, settings, grid)
+    search = search_box(coarse, settings.hull_reach)
+    resolution = round(
+        settings.hull_resolution * (search[1] - search[0]).max() / (coarse[1] - coarse[0]).max()
+    )
+    grid = hull_grid(density, search, dataclasses.replace(settings, hull_resolution=resolution))
+    box, level = hull_box(density, search, views, settings, grid)
     hull_masks(density, box, views, dataclasses.replace(settings, threshold=level))
-    return hull_box(density, coarse, views, settings, grid)[0]
+    return hull_box(density, search, views, settings, grid)[0]
+
+
+def search_box(box, reach):
+    """`box` grown sideways and upwards by `reach` times its longest side (not downwards: under
+    the object is the support)."""
+    box = np.asarray(box, np.float64)
+    grow = reach * (box[1] - box[0]).max()
+    return np.stack([box[0] - [grow, grow, 0.0], box[1] + grow])
 
 
 HULL_LEVELS = 4
@@ -807,7 +825,7 @@ def hull_box(density, box, views, settings: ExtractionSettings, grid=None):
     """(V_o refined by all the masks at once (a visual hull), the density level it was taken at).
 
     Per-view masks err differently: one takes in a piece of the container's wall, another
-    misses a rim. In the masks' box, the voxels whose density is above the level and that
+    misses a rim. In `box`, the voxels whose density is above the level and that
     project inside every view's mask (grown by `hull_dilation` pixels) hold the object and
     little else; their largest connected part, padded and clipped to `box`, is V_o. Occluded
     space (behind or under the object) passes the test too, which is why the unseen bottom is

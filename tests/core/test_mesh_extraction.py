@@ -201,6 +201,57 @@ def test_the_visual_hull_cuts_what_one_mask_took_too_much():
     assert mx.extract_object(cube_beside_wall, coarse, extraction_settings).object_mesh.extents[0] > 0.15
 
 
+def cube_on_floor(points):
+    p = np.asarray(points)
+    cube = np.all(np.abs(p - [0.0, 0.0, 0.05]) <= 0.05, axis=1)
+    floor = (p[:, 2] <= 0.0) & (p[:, 2] >= -0.05)
+    return np.where(cube | floor, 1000.0, 0.0)
+
+
+def cube_depth(view, shape=(120, 160)):
+    """z-depth of the cube [-0.05, 0.05]² x [0, 0.1] in each pixel (0 where the ray misses it)."""
+    v, u = np.mgrid[0 : shape[0], 0 : shape[1]]
+    rays = np.stack([u + 0.5, v + 0.5, np.ones(shape)], -1) @ np.linalg.inv(view.K).T @ view.c2w[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = ([-0.05, -0.05, 0.0] - view.c2w[:3, 3]) / rays
+        high = ([0.05, 0.05, 0.1] - view.c2w[:3, 3]) / rays
+    near = np.minimum(low, high).max(-1)
+    far = np.maximum(low, high).min(-1)
+    return np.where(near <= far, near, 0.0)
+
+
+def test_the_hull_reaches_past_the_box_of_too_few_depth_points():
+    """The masks' depth points cover only the cube's part with x < 0.02 (as few of them fall on
+    a corner seen at a slant, and the trim drops those): their padded box stops short of the
+    cube, and the visual hull, sought in a box grown by `hull_reach`, still holds all of it."""
+    from fignetctl.core.pinhole import look_at
+
+    K = np.array([[150.0, 0, 80], [0, 150.0, 60], [0, 0, 1]])
+    views = []
+    for index, azimuth in enumerate(np.radians([200, 290, 20])):
+        eye = [0.6 * np.cos(azimuth), 0.6 * np.sin(azimuth), 0.45]
+        view = mx.View(f"v{index}", K, look_at(eye, [0, 0, 0.05]), np.zeros((120, 160)))
+        depth = cube_depth(view)
+        view.mask = depth > 0
+        x = mx.masked_points(depth, view.mask, K, view.c2w)[:, 0]
+        view.depth = depth.copy()
+        view.depth[view.mask] = np.where(x < 0.02, depth[view.mask], 0.0)
+        views.append(view)
+    settings = mx.ExtractionSettings()
+    short = mx.object_box_from_views(views, settings)
+    assert short[1][0] < 0.04  # the masks' box ends inside the cube
+    box = mx.consistent_box(cube_on_floor, views, settings)
+    assert box[1][0] > 0.05 and np.all(box[0][:2] < -0.05) and box[1][1] > 0.05
+    assert box[1][0] < 0.05 + 0.2 * 0.1  # the hull's padding, not the whole search box
+    mesh = mx.extract_object(
+        cube_on_floor, box, dataclasses.replace(settings, faces=0, smoothing=0)
+    ).object_mesh
+    np.testing.assert_allclose(mesh.extents, [0.1, 0.1, 0.1], atol=0.01)
+    # without the search the mesh is cut at the masks' box
+    without = dataclasses.replace(settings, hull_reach=0.0)
+    assert mx.consistent_box(cube_on_floor, views, without)[1][0] < 0.04
+
+
 def test_a_faint_support_is_found():
     """A support the field holds only faintly (a peak of a fifth of the threshold) still counts."""
 

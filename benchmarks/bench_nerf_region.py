@@ -192,10 +192,16 @@ def main():
         meshes = {
             region: extract_objects(capture, cameras, Path(nerf), out_dir) for region, nerf in files.items()
         }
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(
-            json.dumps({"capture": str(capture), "nerfs": files, "meshes": meshes}, indent=1, default=str)
-        )
+        out = Path(args.out)
+        report = json.loads(out.read_text()) if out.exists() else {}
+        if all(region in report.get("runs", {}) for region in meshes):
+            # the fits' figures stay; their meshes are replaced
+            for region, found in meshes.items():
+                report["runs"][region]["meshes"] = found
+        else:
+            report = {"capture": str(capture), "nerfs": files, "meshes": meshes}
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=1, default=str))
         print(f"wrote {args.out}")
         return
     runs, paths = {}, {}

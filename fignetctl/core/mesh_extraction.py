@@ -108,12 +108,13 @@ class ExtractionSettings:
     max_extent: float = 0.3
     """The mesh is refused when, in the median prompted view, its outline's width or height is
     off the mask's by more than this fraction."""
-    warn_voxel: float = 0.2
+    warn_voxel: float = 1 / 12
     """A warning when the field's finest voxel is larger than this fraction of the object
-    mesh's smallest side: its size is then uncertain by about a voxel."""
-    max_voxel: float = 0.35
+    mesh's smallest side: its size is then uncertain by up to about a voxel."""
+    max_voxel: float = 0.2
     """The mesh is refused when the field's finest voxel is larger than this fraction of its
-    smallest side: the object is then under three voxels thick and its size is not measured."""
+    smallest side: on a coarse field a mesh's side is off by 0.4-0.9 of a voxel (the support
+    found low, a haze over the top), so under 5 voxels across its size is off by 10-20 % or more."""
     carve_margin: float | None = 0.5
     """The object's density is cut to the masks' visual hull (`carve`): to zero where a grid
     point projects more than this many pixels (+ 0.5) outside a view's mask (None: no carving)."""

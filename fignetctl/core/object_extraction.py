@@ -146,14 +146,14 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
     if voxel is not None and smallest > 0 and voxel > settings.max_voxel * smallest:
         raise FignetError(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
-            f"object mesh's smallest side ({smallest:.3g}): the object is under {1 / settings.max_voxel:.0f} "
-            "voxels thick and its size cannot be measured; fit a finer NeRF around the objects (fit-nerf's "
+            f"object mesh's smallest side ({smallest:.3g}): the object is under {1 / settings.max_voxel:.0f} voxels "
+            "across, so its size (off by up to a voxel) is not measured; fit a finer NeRF around the objects (fit-nerf's "
             f"`region=prompts`), or accept a coarse mesh with `max_voxel` above {voxel / smallest:.2f}"
         )
     if voxel is not None and smallest > 0 and voxel > settings.warn_voxel * smallest:
         warnings.append(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
-            f"object's smallest side ({smallest:.3g}), so its size is uncertain by about a voxel; fit a "
+            f"object's smallest side ({smallest:.3g}), so its size is uncertain by up to a voxel; fit a "
             "finer NeRF around the objects (fit-nerf's `region=prompts`)"
         )
     for line in warnings:

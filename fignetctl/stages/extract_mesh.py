@@ -56,7 +56,7 @@ class Settings:
         high=100,
     )
     max_voxel: float = setting(
-        0.35,
+        0.2,
         "Refuse the mesh when the NeRF's voxel is over this fraction of its smallest side (too coarse "
         "to measure).",
         low=0,

@@ -1205,11 +1205,17 @@ def outline_extents(mesh, views) -> dict:
     return result
 
 
-def check_outline_extents(extents: dict, settings: ExtractionSettings, coarse_field: bool = True) -> list:
+FINER_FIELD = "fit a finer NeRF around the objects (fit-nerf's `region=prompts`)"
+"""The advice for a field too coarse for the object, when it was fitted without a region."""
+
+
+def check_outline_extents(
+    extents: dict, settings: ExtractionSettings, finer: str | None = FINER_FIELD
+) -> list:
     """Compare the mesh's outline with the masks per view and image axis (`outline_extents`).
     FignetError when the median view's worst axis is off by more than max_extent; else a
-    warning line (returned and logged) for each view and axis off by more than warn_extent. A
-    finer NeRF is advised only for a `coarse_field` (its voxel large for the object, or unknown)."""
+    warning line (returned and logged) for each view and axis off by more than warn_extent.
+    `finer`, how to get a finer field, is advised too (None: the field is fine enough)."""
     worst = {}
     for name, axes in extents.items():
         errors = {axis: drawn / masked - 1.0 for axis, (drawn, masked) in axes.items() if masked > 0}
@@ -1219,7 +1225,7 @@ def check_outline_extents(extents: dict, settings: ExtractionSettings, coarse_fi
         return []
     median = float(np.median([abs(error) for _, error in worst.values()]))
     advice = (
-        ("fit a finer NeRF around the objects (fit-nerf's `region=prompts`), " if coarse_field else "")
+        (f"{finer}, " if finer else "")
         + f"add prompted views, or set `threshold` (now {settings.threshold:g}; lower grows the mesh, "
         "higher shrinks it)"
     )

@@ -12,6 +12,7 @@ import logging
 import numpy as np
 
 from fignetctl.core.mesh_extraction import (
+    FINER_FIELD,
     Extraction,
     ExtractionSettings,
     View,
@@ -44,7 +45,14 @@ class ObjectExtraction:
 
 
 def extract(
-    density, settings: ExtractionSettings, views=(), box=None, segmentation=None, voxel=None, more_views=None
+    density,
+    settings: ExtractionSettings,
+    views=(),
+    box=None,
+    segmentation=None,
+    voxel=None,
+    more_views=None,
+    region=None,
 ) -> ObjectExtraction:
     """The object given by `views` (View, with prompts or masks; masks are made from prompts by
     `segmentation`) or by `box` (x0, y0, z0, x1, y1, z1), meshed from `density` with its
@@ -54,7 +62,8 @@ def extract(
     The mesh's outline is checked against the prompted views' masks (`check_mask_agreement`: IoU,
     `check_outline_extents`: width and height per view), and warnings are logged (and listed in
     checks["warnings"]) for an outline off the masks, a mesh that is not watertight, and a field
-    whose finest `voxel` (world units, when known) is coarse for the object's size."""
+    whose finest `voxel` (world units, when known) is coarse for the object's size, with advice
+    on a finer one (`finer_field`; `region`: the field's fine region (2, 3), if it has one)."""
     if box is not None:
         box = np.array(box, np.float64).reshape(2, 3)
         if np.any(box[1] <= box[0]):
@@ -86,9 +95,10 @@ def extract(
     }
     check_mask_agreement(agreement, settings)
     extents = outline_extents(extraction.object_mesh, views)
+    finer = finer_field(extraction, region)
     coarse = voxel is None or voxel > settings.warn_voxel * _smallest_side(extraction.object_mesh)
-    warnings = check_outline_extents(extents, settings, coarse)
-    warnings += _mesh_warnings(extraction.object_mesh, settings, voxel)
+    warnings = check_outline_extents(extents, settings, finer if coarse else None)
+    warnings += _mesh_warnings(extraction.object_mesh, settings, voxel, finer)
     checks = {
         "mask_iou": agreement,
         "outline_extent_px": extents,
@@ -131,10 +141,25 @@ def unprompted_views(cameras, model, read_image, skip=()):
     return views
 
 
-def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
+def finer_field(extraction: Extraction, region=None) -> str:
+    """How to get a field fine enough for the extracted object: a region around the objects, or,
+    for a field that has one (`region`), a region around this object alone (V_o grown by half
+    its longest side each way): the region's grid keeps its vertex count, so a smaller region
+    has finer voxels."""
+    if region is None:
+        return FINER_FIELD
+    grow = 0.5 * float(np.max(extraction.upper - extraction.lower))
+    box = np.concatenate([extraction.lower - grow, extraction.upper + grow])
+    return (
+        "fit the NeRF's fine region around this object alone, where its voxels are finer "
+        f"(fit-nerf's `region={','.join(f'{value:.3f}' for value in box)}`)"
+    )
+
+
+def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None, finer=FINER_FIELD) -> list:
     """Warning lines (also logged) for an object mesh that is not watertight and for a field
     whose finest `voxel` is over `warn_voxel` of the mesh's smallest side; FignetError when the
-    voxel is over `max_voxel` of it."""
+    voxel is over `max_voxel` of it. `finer`: how to get a finer field (`finer_field`)."""
     warnings = []
     if not mesh.is_watertight:
         warnings.append(
@@ -147,14 +172,13 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None) -> list:
         raise FignetError(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
             f"object mesh's smallest side ({smallest:.3g}): the object is under {1 / settings.max_voxel:.0f} voxels "
-            "across, so its size (off by up to a voxel) is not measured; fit a finer NeRF around the objects (fit-nerf's "
-            f"`region=prompts`), or accept a coarse mesh with `max_voxel` above {voxel / smallest:.2f}"
+            f"across, so its size (off by up to a voxel) is not measured; {finer}, or accept a coarse mesh "
+            f"with `max_voxel` above {voxel / smallest:.2f}"
         )
     if voxel is not None and smallest > 0 and voxel > settings.warn_voxel * smallest:
         warnings.append(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
-            f"object's smallest side ({smallest:.3g}), so its size is uncertain by up to a voxel; fit a "
-            "finer NeRF around the objects (fit-nerf's `region=prompts`)"
+            f"object's smallest side ({smallest:.3g}), so its size is uncertain by up to a voxel; {finer}"
         )
     for line in warnings:
         log.warning("%s", line)

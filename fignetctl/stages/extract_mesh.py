@@ -167,7 +167,9 @@ def _extract(inputs: ExtractionInputs, out_dir, settings, segmentation=None, dev
         prompted = {cameras.index_of(view.name) for view in views}
         read = lambda index: _read_image(image_dir / str(cameras.image_names[index]), cameras)
         more_views = unprompted_views(cameras, model, read, prompted)
-    result = extract(model.density, settings, views, inputs.box, segmentation, voxel, more_views)
+    result = extract(
+        model.density, settings, views, inputs.box, segmentation, voxel, more_views, model.region
+    )
     extraction, views, checks = result.extraction, result.views, result.checks
     extra = {"inputs": {k: v for k, v in dataclasses.asdict(inputs).items() if v}, **checks}
     provenance = stamp(

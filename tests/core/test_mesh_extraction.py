@@ -490,7 +490,7 @@ def test_a_mesh_too_wide_for_its_masks_is_warned_per_view_and_axis_and_a_far_off
     )
     assert any(views[1].name in line and "image width" in line for line in warnings)  # x is across view 1
     assert caplog.text.count("than the mask (") == len(warnings)
-    fine = mx.check_outline_extents(mx.outline_extents(wide, views), settings, coarse_field=False)
+    fine = mx.check_outline_extents(mx.outline_extents(wide, views), settings, finer=None)
     assert len(fine) == len(warnings) and not any("finer NeRF" in line for line in fine)
     assert all("add prompted views" in line for line in fine)  # a field fine enough: other advice only
     small = box.copy()
@@ -543,6 +543,27 @@ def test_extraction_warns_of_an_open_mesh_and_of_a_coarse_field(caplog):
     assert _mesh_warnings(
         closed, dataclasses.replace(settings, max_voxel=0.5), voxel=0.023
     )  # accepted, warned
+
+
+def test_a_region_fields_advice_is_a_region_around_the_object_alone():
+    """A field fitted without a region is told to fit one around the objects; a field that has
+    one, to fit it around this object alone: V_o grown by half its longest side, a box that
+    fit-nerf's region parser takes, and on the command line a flag with that box."""
+    from fignetctl.cli import as_flags
+    from fignetctl.core.nerf.region import parse_region
+    from fignetctl.core.object_extraction import finer_field
+
+    extraction = mx.Extraction(
+        None, None, np.array([-0.1, 0.2, 0.01]), np.array([-0.02, 0.28, 0.05]), None, None, None, 0.0
+    )
+    assert finer_field(extraction) == mx.FINER_FIELD
+    advice = finer_field(extraction, region=np.array([[-1.0, -1, -1], [1, 1, 1]]))
+    value = advice.split("`region=")[1].split("`")[0]
+    assert value == "-0.140,0.160,-0.030,0.020,0.320,0.090"
+    request = parse_region(value)
+    assert request.kind == "box"
+    np.testing.assert_allclose(request.box, [-0.14, 0.16, -0.03, 0.02, 0.32, 0.09])
+    assert f"--region {value})" in as_flags(advice)
 
 
 def test_plane_fits_allow_for_a_coarse_fields_depth_noise(small_capture):

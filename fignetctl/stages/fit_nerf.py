@@ -71,6 +71,14 @@ class Settings:
         low=0,
         low_open=True,
     )
+    region_rays: float = setting(
+        0.0,
+        "With a region: this share of each batch is drawn from the rays that pass through it, so a "
+        "region that fills a small part of the images is trained as often as the rest (a tabletop "
+        "in a room: 0.5).",
+        low=0,
+        high=1,
+    )
     resume: bool = setting(False, "Continue the run saved in --output where it stopped.")
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
     device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
@@ -133,6 +141,7 @@ def run(
         background=settings.background,
         near_fraction=settings.near,
         distortion_weight=settings.distortion,
+        region_rays=settings.region_rays,
         seed=settings.seed,
     )
     data_hash = inputs_hash(images_dir, cameras)

@@ -46,6 +46,17 @@ def test_a_box_region_is_fitted_finely_and_reported(scene, tmp_path):
     assert np.isfinite(metrics["held_out_region_psnr"])
 
 
+def test_region_rays_are_kept_in_the_file_and_out_of_range_is_refused(scene, tmp_path):
+    _, images, cameras, _ = scene
+    box = "-0.2,-0.2,-0.2,0.2,0.2,0.2"
+    result = fit(images, cameras, tmp_path / "r.pt", "--region", box, "--region-rays", "0.5")
+    assert result.exit_code == 0, result.output
+    assert load_nerf(tmp_path / "r.pt").config.region_rays == 0.5
+    assert "--region-rays" in one_line_error(
+        fit(images, cameras, tmp_path / "bad.pt", "--region-rays", "1.5")
+    )
+
+
 def test_auto_with_prompts_fits_around_them_and_scene_prints_its_voxel(scene, tmp_path):
     _, images, cameras, prompts = scene
     result = fit(images, cameras, tmp_path / "a.pt", "--prompts", prompts, "--region-margin", "0.3")

@@ -367,3 +367,40 @@ def test_a_region_fit_lowers_the_loss_and_reports_region_psnr(tmp_path):
     assert np.isfinite(metrics["held_out_region_psnr"])
     assert all(0 < v["region_pixels"] < 1 for v in metrics["held_out"])
     assert load_nerf(tmp_path / "nerf.pt").region is not None
+
+
+def test_rays_through_the_region_are_found_by_the_slab_test_and_fill_their_share_of_a_batch(tmp_path):
+    """`rays_through_region` holds exactly the rays that have a point inside the region (dense
+    points along each ray, brute force), and with `region_rays` 0.75 at least that share of a
+    batch passes through it; with 0 the batch is what it was (the same random draws)."""
+    from fignetctl.core.nerf.rays import ray_box_intersection
+    from fignetctl.core.nerf.training import rays_through_region
+
+    model = region_model()
+    rng = np.random.default_rng(0)
+    origins = torch.as_tensor(rng.uniform(-2, 2, (400, 3)), dtype=torch.float32)
+    directions = torch.as_tensor(rng.normal(size=(400, 3)), dtype=torch.float32)
+    found = set(rays_through_region(model, origins, directions).tolist())
+    t = torch.linspace(0, 8, 4001)
+    points = origins[:, None, :] + t[None, :, None] * directions[:, None, :]
+    low, high = torch.as_tensor(REGION[0]), torch.as_tensor(REGION[1])
+    inside = ((points >= low) & (points <= high)).all(-1).any(-1)
+    near, far = ray_box_intersection(origins, directions, low.float(), high.float())
+    grazing = (far - near).abs() < 0.01  # a chord shorter than the brute force's step may be missed
+    expected = set(torch.nonzero(inside).reshape(-1).tolist())
+    assert {i for i in found ^ expected if not grazing[i]} == set()
+    assert 0 < len(found) < 400
+    assert rays_through_region(NerfModel(TINY, BOUNDS, density_resolution=8), origins, directions) is None
+
+    images, _, cameras = write_synthetic_scene(tmp_path)
+    box = np.array([[-0.1] * 3, [0.1] * 3])
+    focused = make_trainer(images, cameras, dataclasses.replace(TINY, region_rays=0.75), region=box)
+    through = set(focused.through_region.tolist())
+    assert 0 < len(through) < 0.5 * len(focused.origins)
+    batch = focused._ray_batch().tolist()
+    assert sum(i in through for i in batch) >= 0.75 * len(batch)
+    plain = make_trainer(images, cameras, TINY, region=box)
+    expected = torch.randint(
+        len(plain.origins), (TINY.rays_per_batch,), generator=torch.Generator().manual_seed(TINY.seed)
+    )
+    assert torch.equal(plain._ray_batch(), expected)

@@ -82,6 +82,10 @@ class NerfConfig:
     region_step_ratio: float = 0.0
     """With a region: distance between samples inside it, in voxels of its density grid (0:
     `step_ratio`); outside it samples are `step_ratio` voxels of the coarse grid apart."""
+    region_rays: float = 0.0
+    """With a region: this share of each batch is drawn from the rays that pass through it (the
+    rest from all rays), so its fine voxels are trained as often as a one-grid fit's are even where
+    the region fills a small part of the images (a tabletop in a room)."""
     region_max_vertices: int = 0
     """With a region: its grids' resolutions are scaled down (at every step alike) until its density
     grid has at most this many vertices at the end; 0: as many as `grid_resolution` over the whole

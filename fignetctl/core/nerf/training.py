@@ -21,9 +21,23 @@ from fignetctl.core.nerf.data import load_views, training_rays
 from fignetctl.core.nerf.evaluation import evaluate_views, psnr
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
-from fignetctl.core.nerf.rays import camera_reach, scene_bounds
+from fignetctl.core.nerf.rays import camera_reach, ray_box_intersection, scene_bounds
 from fignetctl.core.nerf.region import RegionRequest, check_seen, resolve_region
 from fignetctl.errors import FignetError
+
+
+def rays_through_region(model: NerfModel, origins, directions):
+    """Indices (N,) of the rays (R, 3 origins and directions) that cross the model's region in
+    front of their origin, or None without a region."""
+    if model.region is None:
+        return None
+    low, high = (torch.as_tensor(b, dtype=origins.dtype) for b in model.region)
+    through = []
+    for start in range(0, len(origins), 1 << 18):
+        chunk = slice(start, start + (1 << 18))
+        near, far = ray_box_intersection(origins[chunk].cpu(), directions[chunk].cpu(), low, high)
+        through.append(torch.nonzero(far > near).reshape(-1) + start)
+    return torch.cat(through)
 
 
 def make_optimizer(model: NerfModel, config: NerfConfig):
@@ -60,6 +74,9 @@ class NerfTrainer:
         self.model, self.views, self.config, self.device = model.to(device), views, config, device
         self.train_views, self.held_out_views = views.split(config.holdout_every)
         self.origins, self.directions, self.colours = training_rays(views, self.train_views, device)
+        self.through_region = (
+            rays_through_region(model, self.origins, self.directions) if config.region_rays > 0 else None
+        )
         self.optimizer = make_optimizer(model, config)
         self.generator = torch.Generator().manual_seed(config.seed)
         self.step, self.seconds, self.history, self.data_hash = 0, 0.0, [], data_hash
@@ -83,12 +100,21 @@ class NerfTrainer:
         for group in self.optimizer.param_groups:
             group["lr"] = group["base_lr"] * self.learning_rate_factor()
 
+    def _ray_batch(self) -> torch.Tensor:
+        """`rays_per_batch` ray indices: `region_rays` of them among the rays through the region."""
+        count = self.config.rays_per_batch
+        through = self.through_region
+        focused = round(count * self.config.region_rays) if through is not None and len(through) else 0
+        index = torch.randint(len(self.origins), (count - focused,), generator=self.generator)
+        if focused:
+            picked = torch.randint(len(through), (focused,), generator=self.generator)
+            index = torch.cat([index, through[picked]])
+        return index.to(self.device)
+
     def train_step(self) -> dict:
         started = time.perf_counter()
         self._before_step()
-        index = torch.randint(len(self.origins), (self.config.rays_per_batch,), generator=self.generator).to(
-            self.device
-        )
+        index = self._ray_batch()
         jitter = torch.rand(self.config.rays_per_batch, generator=self.generator).to(self.device)
         warm = self.step >= self.config.occupancy_warmup
         out = self.model.render_rays(

@@ -76,8 +76,8 @@ class ExtractionSettings:
     hull_resolution: int = 64
     """Grid vertices along the longest side of the masks' box for the visual-hull refinement (0: off)."""
     hull_reach: float = 0.25
-    """The visual hull is sought in the masks' box grown by this fraction of its longest side
-    (`search_box`): the masks' depth points are trimmed (`trim_percent`), and an object's corner
+    """The visual hull is sought in the masks' box grown by this fraction of its longest side,
+    sideways and upwards (`consistent_box`): the masks' depth points are trimmed (`trim_percent`), and an object's corner
     seen at a slant holds few of them, so their box can fall short of the object by more than
     its padding (the room's brick: 17 mm, 19 % of its length)."""
     hull_dilation: int = 3
@@ -790,13 +790,14 @@ def hull_grid(density, box, settings: ExtractionSettings):
 
 def consistent_box(density, views, settings: ExtractionSettings):
     """V_o from the views' masks, the masks made to agree: their visual hull (`hull_box`) sought
-    in the masks' box (`object_box_from_views`) grown by `hull_reach` (`search_box`), the masks
+    in the masks' box (`object_box_from_views`) grown by `hull_reach` but not downwards, the masks
     redrawn from it (`hull_masks`), and the hull taken again with the new masks. The views'
     masks are replaced."""
     coarse = object_box_from_views(views, settings)
     if settings.hull_resolution <= 0 or len(views) < 2:
         return coarse
-    search = search_box(coarse, settings.hull_reach)
+    search = padded_box(coarse, settings.hull_reach)
+    search[0][2] = coarse[0][2]  # not downwards: under the object is the support
     resolution = round(
         settings.hull_resolution * (search[1] - search[0]).max() / (coarse[1] - coarse[0]).max()
     )
@@ -804,14 +805,6 @@ def consistent_box(density, views, settings: ExtractionSettings):
     box, level = hull_box(density, search, views, settings, grid)
     hull_masks(density, box, views, dataclasses.replace(settings, threshold=level))
     return hull_box(density, search, views, settings, grid)[0]
-
-
-def search_box(box, reach):
-    """`box` grown sideways and upwards by `reach` times its longest side (not downwards: under
-    the object is the support)."""
-    box = np.asarray(box, np.float64)
-    grow = reach * (box[1] - box[0]).max()
-    return np.stack([box[0] - [grow, grow, 0.0], box[1] + grow])
 
 
 HULL_LEVELS = 4

@@ -24,6 +24,7 @@ from fignetctl.core.mesh_extraction import (
     mask_agreement,
     outline_extents,
     outline_masks,
+    padded_box,
     silhouette,
     view_masks,
 )
@@ -148,11 +149,10 @@ def finer_field(extraction: Extraction, region=None) -> str:
     has finer voxels."""
     if region is None:
         return FINER_FIELD
-    grow = 0.5 * float(np.max(extraction.upper - extraction.lower))
-    box = np.concatenate([extraction.lower - grow, extraction.upper + grow])
+    box = padded_box(np.stack([extraction.lower, extraction.upper]), 0.5)
     return (
         "fit the NeRF's fine region around this object alone, where its voxels are finer "
-        f"(fit-nerf's `region={','.join(f'{value:.3f}' for value in box)}`)"
+        f"(fit-nerf's `region={','.join(f'{value:.3f}' for value in box.reshape(-1))}`)"
     )
 
 

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import time
 
+import numpy as np
 import torch
 
 from fignetctl.core.nerf.config import NerfConfig, for_capture
@@ -21,8 +22,8 @@ from fignetctl.core.nerf.data import load_views, training_rays
 from fignetctl.core.nerf.evaluation import evaluate_views, psnr
 from fignetctl.core.nerf.io import load_nerf, save_nerf
 from fignetctl.core.nerf.model import NerfModel
-from fignetctl.core.nerf.rays import camera_reach, ray_box_intersection, scene_bounds
-from fignetctl.core.nerf.region import RegionRequest, check_seen, resolve_region
+from fignetctl.core.nerf.rays import camera_reach, scene_bounds
+from fignetctl.core.nerf.region import RegionRequest, check_seen, ray_hits, resolve_region
 from fignetctl.errors import FignetError
 
 
@@ -31,13 +32,8 @@ def rays_through_region(model: NerfModel, origins, directions):
     front of their origin, or None without a region."""
     if model.region is None:
         return None
-    low, high = (torch.as_tensor(b, dtype=origins.dtype) for b in model.region)
-    through = []
-    for start in range(0, len(origins), 1 << 18):
-        chunk = slice(start, start + (1 << 18))
-        near, far = ray_box_intersection(origins[chunk].cpu(), directions[chunk].cpu(), low, high)
-        through.append(torch.nonzero(far > near).reshape(-1) + start)
-    return torch.cat(through)
+    hits = ray_hits(origins.cpu().numpy(), directions.cpu().numpy(), model.region)
+    return torch.as_tensor(np.flatnonzero(hits))
 
 
 def make_optimizer(model: NerfModel, config: NerfConfig):

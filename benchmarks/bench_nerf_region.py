@@ -17,6 +17,7 @@ Writes benchmarks/results/nerf_region.json (or --out).
 """
 
 import argparse
+import dataclasses
 import json
 import platform
 import tempfile
@@ -101,8 +102,9 @@ def region_psnr(path, capture, cameras, box):
     return result["region_psnr"], float(np.mean(shares))
 
 
-def extract_objects(capture, cameras, nerf, out_dir) -> dict:
-    """extract-mesh (defaults, threshold auto) of every prompted object from `nerf`: its summary
+def extract_objects(capture, cameras, nerf, out_dir, max_voxel=None) -> dict:
+    """extract-mesh (defaults, threshold auto; `max_voxel` if given) of every prompted object
+    from `nerf`: its summary
     figures and its mesh against the ground truth (Chamfer as a fraction of the object's
     largest side), as benchmarks/bench_extract_mesh.py measures them."""
     import sys
@@ -121,6 +123,8 @@ def extract_objects(capture, cameras, nerf, out_dir) -> dict:
     for name in names:
         folder = out_dir / f"{Path(nerf).stem}-{name}"
         settings = extract_mesh.Settings(object=name, device="cpu")
+        if max_voxel is not None:
+            settings = dataclasses.replace(settings, max_voxel=max_voxel)
         try:
             summary = extract_mesh.run(
                 str(nerf),
@@ -178,6 +182,9 @@ def main():
         metavar="REGION=NERF",
         help="only extract the objects from these fitted files (e.g. scene=a.pt prompts=b.pt)",
     )
+    parser.add_argument(
+        "--max-voxel", type=float, default=None, help="extract-mesh's --max-voxel (default: its own)"
+    )
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "nerf_region.json"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -190,7 +197,8 @@ def main():
     if args.extract_from:
         files = dict(item.split("=", 1) for item in args.extract_from)
         meshes = {
-            region: extract_objects(capture, cameras, Path(nerf), out_dir) for region, nerf in files.items()
+            region: extract_objects(capture, cameras, Path(nerf), out_dir, args.max_voxel)
+            for region, nerf in files.items()
         }
         out = Path(args.out)
         report = json.loads(out.read_text()) if out.exists() else {}
@@ -239,7 +247,7 @@ def main():
         runs[region]["psnr_on_compared_pixels"] = psnr_value
         runs[region]["compared_pixel_share"] = share
         if args.extract_mesh:
-            runs[region]["meshes"] = extract_objects(capture, cameras, paths[region], out_dir)
+            runs[region]["meshes"] = extract_objects(capture, cameras, paths[region], out_dir, args.max_voxel)
     result = {
         "capture": str(capture),
         "cameras": str(cameras),

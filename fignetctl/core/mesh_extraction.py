@@ -111,10 +111,11 @@ class ExtractionSettings:
     warn_voxel: float = 1 / 12
     """A warning when the field's finest voxel is larger than this fraction of the object
     mesh's smallest side: its size is then uncertain by up to about a voxel."""
-    max_voxel: float = 0.2
+    max_voxel: float = 0.1
     """The mesh is refused when the field's finest voxel is larger than this fraction of its
-    smallest side: on a coarse field a mesh's side is off by 0.4-0.9 of a voxel (the support
-    found low, a haze over the top), so under 5 voxels across its size is off by 10-20 % or more."""
+    smallest side: on a coarse field a mesh's side is off by 0.3-1 of a voxel (the support found
+    low, a lid over an opening), which nothing else the extraction sees reveals, so under 10
+    voxels across a side can be off by more than 10 %."""
     carve_margin: float | None = 0.5
     """The object's density is cut to the masks' visual hull (`carve`): to zero where a grid
     point projects more than this many pixels (+ 0.5) outside a view's mask (None: no carving)."""

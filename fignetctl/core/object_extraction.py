@@ -172,7 +172,7 @@ def _mesh_warnings(mesh, settings: ExtractionSettings, voxel=None, finer=FINER_F
         raise FignetError(
             f"the NeRF's finest voxel ({voxel:.3g} world units) is {100 * voxel / smallest:.0f} % of the "
             f"object mesh's smallest side ({smallest:.3g}): the object is under {1 / settings.max_voxel:.0f} voxels "
-            f"across, so its size (off by up to a voxel) is not measured; {finer}, or accept a coarse mesh "
+            f"across, and a side can be off by a voxel; {finer}, or accept a coarse mesh "
             f"with `max_voxel` above {voxel / smallest:.2f}"
         )
     if voxel is not None and smallest > 0 and voxel > settings.warn_voxel * smallest:

@@ -56,9 +56,9 @@ class Settings:
         high=100,
     )
     max_voxel: float = setting(
-        0.2,
+        0.1,
         "Refuse the mesh when the NeRF's voxel is over this fraction of its smallest side (too coarse "
-        "to measure).",
+        "to measure: a side can be off by a voxel).",
         low=0,
         low_open=True,
     )

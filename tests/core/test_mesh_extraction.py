@@ -532,14 +532,14 @@ def test_extraction_warns_of_an_open_mesh_and_of_a_coarse_field(caplog):
     assert _mesh_warnings(closed, settings, voxel=0.004) == []  # 8 % of the 5 cm side
     opened = trimesh.Trimesh(closed.vertices, closed.faces[:-2])
     with caplog.at_level("WARNING"):
-        warnings = _mesh_warnings(opened, settings, voxel=0.005)
+        warnings = _mesh_warnings(opened, settings, voxel=0.0045)
     assert len(warnings) == 2 and "not watertight" in warnings[0] and "closed mesh" in warnings[0]
-    assert "10 % of the object's smallest side" in warnings[1] and "`region=prompts`" in warnings[1]
+    assert "9 % of the object's smallest side" in warnings[1] and "`region=prompts`" in warnings[1]
     assert "not watertight" in caplog.text
     with pytest.raises(
-        FignetError, match="22 % of the object mesh's smallest side .* under 5 voxels across, so its size"
+        FignetError, match="11 % of the object mesh's smallest side .* under 10 voxels across, and a side"
     ):
-        _mesh_warnings(closed, settings, voxel=0.011)
+        _mesh_warnings(closed, settings, voxel=0.0055)
     assert _mesh_warnings(
         closed, dataclasses.replace(settings, max_voxel=0.5), voxel=0.023
     )  # accepted, warned

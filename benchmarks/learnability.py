@@ -68,6 +68,14 @@ def main() -> None:
     parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--noise",
+        type=float,
+        nargs=2,
+        default=(0.0, 0.0),
+        metavar=("M", "RAD"),
+        help="training's per-object jitter of frame t (train's: 0.003 0.003); FVU is measured without",
+    )
+    parser.add_argument(
         "--report-at", default="", help="comma-separated steps at which FVU is also measured (one schedule)"
     )
     parser.add_argument("-o", "--output", default=None)
@@ -91,6 +99,7 @@ def main() -> None:
         args.precision,
         args.seed,
         until_step=report_at[0] if report_at else None,
+        noise=tuple(args.noise),
     )
     examples = one_step_examples(trainer.simulator, scenes)
     curve = []

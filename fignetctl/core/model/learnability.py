@@ -137,9 +137,11 @@ def overfit(
     precision="fp32",
     seed=0,
     until_step=None,
+    noise=(0.0, 0.0),
 ):
-    """A Trainer that has fitted `scenes` without noise (the learnability test) for `steps`, or
-    for `until_step` of a `steps`-long schedule (continue it with `trainer.run(until_step=...)`)."""
+    """A Trainer that has fitted `scenes` for `steps`, or for `until_step` of a `steps`-long
+    schedule (continue it with `trainer.run(until_step=...)`); without noise (the learnability
+    test) unless `noise` gives training's per-object jitter (translation m, rotation rad)."""
     from fignetctl.core.model.simulator import LearnedSimulator
     from fignetctl.core.model.training import Trainer, TrainingSettings
 
@@ -148,8 +150,8 @@ def overfit(
         batch_size=batch_size,
         learning_rate_initial=learning_rate[0],
         learning_rate_final=learning_rate[1],
-        noise_translation_std=0.0,
-        noise_rotation_std=0.0,
+        noise_translation_std=noise[0],
+        noise_rotation_std=noise[1],
         loss=loss,
         precision=precision,
         normalizer_accumulation_steps=min(200, steps),

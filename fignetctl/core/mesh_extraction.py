@@ -113,7 +113,7 @@ class ExtractionSettings:
     mesh's smallest side: its size is then uncertain by up to about a voxel."""
     max_voxel: float = 0.1
     """The mesh is refused when the field's finest voxel is larger than this fraction of its
-    smallest side: on a coarse field a mesh's side is off by 0.3-1 of a voxel (the support found
+    smallest side: on a coarse field a mesh's side is off by 0.3-1.1 voxel (the support found
     low, a blob over an opening), which nothing else the extraction sees reveals, so under 10
     voxels across a side can be off by more than 10 %."""
     carve_margin: float | None = 0.5

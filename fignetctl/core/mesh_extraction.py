@@ -77,9 +77,10 @@ class ExtractionSettings:
     """Grid vertices along the longest side of the masks' box for the visual-hull refinement (0: off)."""
     hull_reach: float = 0.25
     """The visual hull is sought in the masks' box grown by this fraction of its longest side,
-    sideways and upwards (`consistent_box`): the masks' depth points are trimmed (`trim_percent`), and an object's corner
-    seen at a slant holds few of them, so their box can fall short of the object by more than
-    its padding (the room's brick: 17 mm, 19 % of its length)."""
+    sideways and upwards (`consistent_box`): the masks' depth points are trimmed
+    (`trim_percent`), and an object's corner seen at a slant holds few of them, so their box can
+    fall short of the object by more than its padding (the room's brick: 17 mm, 19 % of its
+    length)."""
     hull_dilation: int = 3
     """Pixels each mask is grown by before the hull test, so a mask a little short of the object's edge cuts nothing off."""
     hull_mask_margin: float = 0.3

@@ -5,8 +5,8 @@ after a warm-up, in one stream of batches (the normalizer statistics are frozen 
 after step 500 of a real run; the batch-building processes have started and filled their
 queue), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
-the training process, float32, one thread, static receivers: the bundled models' training);
-every other is reported as a ratio to it. The last runs two data-parallel
+the training process, float32, one thread, static receivers, every MLP on its concatenated
+input: the bundled models' training); every other is reported as a ratio to it. The last runs two data-parallel
 processes under torchrun (each its own batch of --batch-size, so twice the samples per step).
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
@@ -29,6 +29,7 @@ from pathlib import Path
 import torch
 
 from fignetctl.core.atomic import atomic_path
+from fignetctl.core.model.network import EncodeProcessDecode, concatenated_forward
 from fignetctl.core.model.training import (
     TrainingSettings,
     make_trainer,
@@ -36,15 +37,25 @@ from fignetctl.core.model.training import (
     simulator_config_for,
 )
 
-FIELDS = ("state", "static_receivers", "workers", "precision", "threads", "processes")
+FORWARD = EncodeProcessDecode.forward
+FIELDS = ("concatenated", "state", "static_receivers", "workers", "precision", "threads", "processes")
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
 SETTINGS = {
-    "serial (positions, fp32, 1 thread, graphs in the loop)": ("positions", True, 0, "fp32", 1, 1),
-    "velocities, no static receivers": ("velocities", False, 0, "fp32", 1, 1),
-    "+ 1 worker process": ("velocities", False, 1, "fp32", 1, 1),
-    "+ bf16": ("velocities", False, 1, "bf16", 1, 1),
-    f"+ 2 threads ({FAST})": ("velocities", False, 1, FAST, 2, 1),
-    f"2 processes (torchrun), {FAST}, graphs in each": ("velocities", False, 0, FAST, 1, 2),
+    "serial (positions, fp32, 1 thread, graphs in the loop, concatenated MLP inputs)": (
+        True,
+        "positions",
+        True,
+        0,
+        "fp32",
+        1,
+        1,
+    ),
+    "velocities, no static receivers": (True, "velocities", False, 0, "fp32", 1, 1),
+    "+ first layers per distinct node": (False, "velocities", False, 0, "fp32", 1, 1),
+    "+ 1 worker process": (False, "velocities", False, 1, "fp32", 1, 1),
+    "+ bf16": (False, "velocities", False, 1, "bf16", 1, 1),
+    f"+ 2 threads ({FAST})": (False, "velocities", False, 1, FAST, 2, 1),
+    f"2 processes (torchrun), {FAST}, graphs in each": (False, "velocities", False, 0, FAST, 1, 2),
 }
 if FAST != "bf16":
     del SETTINGS["+ bf16"]
@@ -58,8 +69,10 @@ def measure(path, setting, args) -> float:
 
 
 def measure_here(path, setting, args) -> float:
-    state, static_receivers, workers, precision, threads, processes = setting
+    concatenated, state, static_receivers, workers, precision, threads, processes = setting
     torch.set_num_threads(threads)
+    # the network as the bundled models trained: each MLP on its concatenated input (same weights)
+    EncodeProcessDecode.forward = concatenated_forward if concatenated else FORWARD
     simulator = simulator_config_for(
         "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
     )
@@ -146,7 +159,7 @@ def main() -> None:
     settings = {
         name: setting
         for name, setting in SETTINGS.items()
-        if not args.single_core or setting[2:3] + setting[4:] == (0, 1, 1)
+        if not args.single_core or setting[3:4] + setting[5:] == (0, 1, 1)
     }
     rates = {name: [] for name in settings}
     for _ in range(args.rounds):

@@ -276,19 +276,14 @@ def _within_conservative_bounds(bounds_1, bounds_2, local_1, local_2, radius):
     return (centre_gap <= sphere_reach) & (box_gap <= slack_radius)
 
 
-def _exact_group_pairs(group_1, group_2, local_1, local_2, radius):
-    """The candidate pairs within the radius, as global (lower face, higher face): the exact
-    distance is computed in that order, as the brute force does."""
+def _ordered_candidates(group_1, group_2, local_1, local_2):
+    """The candidate pairs as global (lower face, higher face), with their triangles in that
+    order: the exact distance is computed in it, as the brute force does."""
     face_1, face_2 = group_1.faces[local_1], group_2.faces[local_2]
     swap = (face_1 > face_2)[:, None, None]
     triangles_1, triangles_2 = group_1.triangles(local_1), group_2.triangles(local_2)
     low, high = np.where(swap, triangles_2, triangles_1), np.where(swap, triangles_1, triangles_2)
-    face_low, face_high = np.minimum(face_1, face_2), np.maximum(face_1, face_2)
-    if face_low.size == 0:
-        return face_low, face_high
-    _, _, distance = closest_points_triangles(low, high)
-    keep = distance <= radius
-    return face_low[keep], face_high[keep]
+    return np.minimum(face_1, face_2), np.maximum(face_1, face_2), low, high
 
 
 def face_pairs_between_groups(groups, group_static, radius, face_count, margins=None):
@@ -297,7 +292,8 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
 
     The work is one box test per group pair and, for groups in reach, k-d tree queries and
     bound tests that touch only faces near the other group: a static group far from every
-    moving one costs nothing per face.
+    moving one costs nothing per face. The exact distances of all the candidates are then
+    computed in one call.
 
     groups : list of FaceGroup, one per object
     group_static : (G,) bool
@@ -310,13 +306,18 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
     """
     group_static = np.asarray(group_static, dtype=bool)
     margins = np.zeros(len(groups)) if margins is None else np.asarray(margins, np.float64)
-    found_i, found_j = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    no_faces = np.zeros(0, dtype=np.int64)
+    candidates = [(no_faces, no_faces, np.zeros((0, 3, 3)), np.zeros((0, 3, 3)), np.zeros(0))]
     for first, second, reach in _group_pairs_in_reach(groups, group_static, radius, margins):
         local_1, local_2 = _group_pair_candidates(groups[first], groups[second], reach)
-        face_i, face_j = _exact_group_pairs(groups[first], groups[second], local_1, local_2, reach)
-        found_i.append(face_i)
-        found_j.append(face_j)
-    return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))
+        face_low, face_high, low, high = _ordered_candidates(groups[first], groups[second], local_1, local_2)
+        candidates.append((face_low, face_high, low, high, np.full(face_low.shape, reach)))
+    face_low, face_high, low, high, reach = (np.concatenate(column) for column in zip(*candidates))
+    if face_low.size:
+        _, _, distance = closest_points_triangles(low, high)
+        keep = distance <= reach
+        face_low, face_high = face_low[keep], face_high[keep]
+    return _sorted_unique_pairs(face_low, face_high, max(face_count, 1))
 
 
 def _object_static_flags(face_object, object_static):

@@ -255,6 +255,17 @@ class GraphNetBlock(nn.Module):
         return node_latents + self.node_update(node_latents, summed_messages), new_edge_latents
 
 
+def concatenated_forward(model: EncodeProcessDecode, graph: MultiGraph) -> torch.Tensor:
+    """`model(graph)` with every MLP on its concatenated input (`concatenated_block_forward`)."""
+    node_latents = model.node_encoder(graph.node_features)
+    edge_latents = {
+        name: encoder(graph.edge_sets[name].features) for name, encoder in model.edge_encoders.items()
+    }
+    for block in model.processor:
+        node_latents, edge_latents = concatenated_block_forward(block, node_latents, edge_latents, graph)
+    return model.decoder(node_latents)
+
+
 def concatenated_block_forward(
     block: GraphNetBlock, node_latents: torch.Tensor, edge_latents: dict[str, torch.Tensor], graph: MultiGraph
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

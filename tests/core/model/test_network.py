@@ -18,7 +18,7 @@ from fignetctl.core.model.network import (
     PRESETS,
     EncodeProcessDecode,
     Incidence,
-    concatenated_block_forward,
+    concatenated_forward,
     sum_messages_into_receivers,
 )
 
@@ -136,17 +136,6 @@ def test_permuting_nodes_permutes_the_output():
     permuted = MultiGraph(graph.node_features[permutation], edge_sets)
     model = tiny_model_for(graph)
     torch.testing.assert_close(model(permuted), model(graph)[permutation], atol=1e-5, rtol=1e-5)
-
-
-def concatenated_forward(model, graph):
-    """The network with each MLP on its concatenated input (the module docstring's equations)."""
-    node_latents = model.node_encoder(graph.node_features)
-    edge_latents = {
-        name: encoder(graph.edge_sets[name].features) for name, encoder in model.edge_encoders.items()
-    }
-    for block in model.processor:
-        node_latents, edge_latents = concatenated_block_forward(block, node_latents, edge_latents, graph)
-    return model.decoder(node_latents)
 
 
 @pytest.mark.parametrize("edge_sets", [ALL_SETS, {MESH_TO_OBJECT: 12, OBJECT_TO_MESH: 12, FACE_FACE: 40}])

@@ -11,8 +11,8 @@ processes under torchrun (each its own batch of --batch-size, so twice the sampl
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
 
-    python benchmarks/bench_training.py data/movi-b-train.h5 --steps 20 --rounds 2 \
-        -o benchmarks/results/training-throughput.json
+    python benchmarks/bench_training.py data/movi-b-train.h5 --batch-size 16 --steps 12 --rounds 2 \
+        -o benchmarks/results/training-throughput-avx512-batch16.json
 """
 
 from __future__ import annotations

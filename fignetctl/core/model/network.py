@@ -249,8 +249,8 @@ class GraphNetBlock(nn.Module):
             senders, receivers = incidences[name]
             update = edge_update(edge_latents[name], node_latents, senders, receivers)
             new_edge_latents[name] = edge_latents[name] + update
-            sums = update.new_zeros(len(receivers.nodes), self.latent_size)
-            sums.index_add_(0, receivers.index, update.reshape(-1, self.latent_size))
+            messages = update.reshape(-1, self.latent_size)  # (E·parts, L)
+            sums = sum_messages_into_receivers(messages, receivers.index, len(receivers.nodes))
             summed_messages.append((sums, receivers.nodes))
         return node_latents + self.node_update(node_latents, summed_messages), new_edge_latents
 

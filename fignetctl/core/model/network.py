@@ -195,10 +195,10 @@ class EdgeUpdate(nn.Sequential):
 
     def forward(self, edge_latents, node_latents, senders: Incidence, receivers: Incidence):
         first = self[0][0]
-        width = edge_latents.shape[1]
-        hidden = F.linear(edge_latents, first.weight[:, :width], first.bias)
-        hidden = hidden + senders.gathered_projection(node_latents, first.weight[:, width : 2 * width])
-        hidden = hidden + receivers.gathered_projection(node_latents, first.weight[:, 2 * width :])
+        edge_weight, sender_weight, receiver_weight = first.weight.split(edge_latents.shape[1], dim=1)
+        hidden = F.linear(edge_latents, edge_weight, first.bias)
+        hidden = hidden + senders.gathered_projection(node_latents, sender_weight)
+        hidden = hidden + receivers.gathered_projection(node_latents, receiver_weight)
         return after_first_layer(self, hidden)
 
 
@@ -211,10 +211,9 @@ class NodeUpdate(nn.Sequential):
     def forward(self, node_latents, summed_messages: list[tuple[torch.Tensor, torch.Tensor]]):
         """summed_messages : per edge set, (sums (U, L) into its distinct receivers, their nodes (U,))."""
         first = self[0][0]
-        latent_size = node_latents.shape[1]
-        hidden = F.linear(node_latents, first.weight[:, :latent_size], first.bias)
-        for part, (sums, nodes) in enumerate(summed_messages, start=1):
-            weight = first.weight[:, part * latent_size : (part + 1) * latent_size]
+        node_weight, *message_weights = first.weight.split(node_latents.shape[1], dim=1)
+        hidden = F.linear(node_latents, node_weight, first.bias)
+        for (sums, nodes), weight in zip(summed_messages, message_weights, strict=True):
             hidden = hidden.index_add(0, nodes, sums @ weight.T)
         return after_first_layer(self, hidden)
 

@@ -6,8 +6,9 @@ after step 500 of a real run; the batch-building processes have started and fill
 queue), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers, every MLP on its concatenated
-input: the bundled models' training); every other is reported as a ratio to it. The last runs two data-parallel
-processes under torchrun (each its own batch of --batch-size, so twice the samples per step).
+input: the bundled models' training); every other is reported as a ratio to it. The last
+runs two data-parallel processes under torchrun (each its own batch of --batch-size, so twice
+the samples per step).
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
 

@@ -123,6 +123,7 @@ def run(
     from fignetctl.core.model.training import (
         TrainingSettings,
         make_trainer,
+        network_threads,
         resolve_precision,
         simulator_config_for,
         write_loss_csv,
@@ -176,6 +177,7 @@ def run(
     )
     address = settings.rerun_connect if trainer.rank == 0 else None
     with (
+        network_threads(settings.workers, device),
         live_recording(address, rerun_path or output, report or to_stderr) as live,
         (progress or no_progress)(
             total=settings.steps,

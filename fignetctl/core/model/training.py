@@ -19,8 +19,10 @@ the same weights as one that never stopped.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 
@@ -97,6 +99,22 @@ def resolve_precision(precision: str, device: str) -> str:
     except OSError:
         return "fp32"
     return "bf16" if {"avx512_bf16", "amx_bf16"} & set(flags) else "fp32"
+
+
+@contextlib.contextmanager
+def network_threads(workers: int, device: str):
+    """Within: as many torch threads as the cores the `workers` leave free (at least one), on the
+    CPU, so that the graph builders and the network's threads never share a core: a thread that
+    waits for its core stalls every parallel region of the network. An OMP_NUM_THREADS in the
+    environment (torchrun sets one) is kept; the previous count is restored after."""
+    previous = torch.get_num_threads()
+    if not str(device).startswith("cuda") and "OMP_NUM_THREADS" not in os.environ:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        torch.set_num_threads(max(1, cores - workers))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def learning_rate_factor(step: int, config: TrainingSettings) -> float:

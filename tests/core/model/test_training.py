@@ -1,4 +1,5 @@
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -9,7 +10,7 @@ from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import RolloutError, rollout
 from fignetctl.core.model.scene_graph import GraphConfig
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
-from fignetctl.core.model.training import TrainingSettings, make_trainer
+from fignetctl.core.model.training import TrainingSettings, make_trainer, network_threads
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
@@ -233,3 +234,17 @@ def test_a_run_saved_before_target_keeps_noise_resumes_with_its_old_target(box_f
     torch.save(payload, tmp_path / "old.pt")
     resumed = make_trainer(box_file, TINY, _config(), resume_from=tmp_path / "old.pt")
     assert resumed.config.target_keeps_noise is False
+
+
+def test_network_threads_leave_the_workers_their_cores(monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(6)), raising=False)
+    before = torch.get_num_threads()
+    with network_threads(2, "cpu"):
+        assert torch.get_num_threads() == 4
+    with network_threads(8, "cpu"):  # more workers than cores: still one thread
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")  # as torchrun sets it: kept
+    with network_threads(1, "cpu"):
+        assert torch.get_num_threads() == before

@@ -54,6 +54,7 @@ from fignetctl.core.model.graph import (
 )
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scenes_from_file
 from fignetctl.core.model.scene_graph import build_scene_graph, collision_face_pairs
+from fignetctl.core.model.training import torch_threads
 from fignetctl.errors import FignetError
 
 FORMAT = "fignetctl.bench-memory"
@@ -486,18 +487,6 @@ def run_benchmark(data_paths, simulators: dict, config: BenchmarkSettings, on_pa
         "paper": {"table_1": PAPER_TABLE_1, "ratios_movi_b": PAPER_RATIOS_MOVI_B},
         "data": files,
     }
-
-
-@contextlib.contextmanager
-def torch_threads(threads):
-    """Run the block with `threads` torch intra-op threads (None: unchanged), then restore."""
-    previous = torch.get_num_threads()
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def model_description(simulator) -> dict:

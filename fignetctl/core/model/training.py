@@ -102,19 +102,26 @@ def resolve_precision(precision: str, device: str) -> str:
 
 
 @contextlib.contextmanager
-def network_threads(workers: int, device: str):
-    """Within: as many torch threads as the cores the `workers` leave free (at least one), on the
-    CPU, so that the graph builders and the network's threads never share a core: a thread that
-    waits for its core stalls every parallel region of the network. An OMP_NUM_THREADS in the
-    environment (torchrun sets one) is kept; the previous count is restored after."""
+def torch_threads(threads):
+    """Run the block with `threads` torch intra-op threads (None: unchanged), then restore."""
     previous = torch.get_num_threads()
-    if not str(device).startswith("cuda") and "OMP_NUM_THREADS" not in os.environ:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-        torch.set_num_threads(max(1, cores - workers))
+    if threads is not None:
+        torch.set_num_threads(threads)
     try:
         yield
     finally:
         torch.set_num_threads(previous)
+
+
+def network_threads(workers: int, device: str):
+    """A `torch_threads` block with as many threads as the cores the `workers` leave free (at
+    least one), on the CPU, so that the graph builders and the network's threads never share a
+    core: a thread that waits for its core stalls every parallel region of the network. An
+    OMP_NUM_THREADS in the environment (torchrun sets one) is kept."""
+    if str(device).startswith("cuda") or "OMP_NUM_THREADS" in os.environ:
+        return torch_threads(None)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return torch_threads(max(1, cores - workers))
 
 
 def learning_rate_factor(step: int, config: TrainingSettings) -> float:

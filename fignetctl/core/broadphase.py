@@ -286,9 +286,24 @@ def _ordered_candidates(group_1, group_2, local_1, local_2):
     return np.minimum(face_1, face_2), np.maximum(face_1, face_2), low, high
 
 
-def face_pairs_between_groups(groups, group_static, radius, face_count, margins=None):
+class FacePairs(NamedTuple):
+    """Face pairs in contact reach, with the closest points the exact test found.
+
+    face_i, face_j : (P,) int64, face_i < face_j, sorted lexicographically
+    point_i, point_j : (P, 3) float64, the closest points on face_i and on face_j
+    distance : (P,) float64, their distance
+    """
+
+    face_i: np.ndarray
+    face_j: np.ndarray
+    point_i: np.ndarray
+    point_j: np.ndarray
+    distance: np.ndarray
+
+
+def face_pairs_between_groups(groups, group_static, radius, face_count, margins=None) -> FacePairs:
     """All pairs of faces of different groups, not both static, within `radius` (plus the two
-    groups' `margins`, when given).
+    groups' `margins`, when given), with their closest points.
 
     The work is one box test per group pair and, for groups in reach, k-d tree queries and
     bound tests that touch only faces near the other group: a static group far from every
@@ -302,7 +317,7 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
     margins : (G,) float >= 0 or None: the faces of groups a and b, one of them static, pair
         within radius + margins[a] + margins[b] (speculative pairs with static geometry,
         GraphConfig.speculative); two moving groups pair within the radius
-    returns : face_i (P,), face_j (P,) int64, face_i < face_j, sorted lexicographically
+    returns : FacePairs (its first two fields are the pairs)
     """
     group_static = np.asarray(group_static, dtype=bool)
     margins = np.zeros(len(groups)) if margins is None else np.asarray(margins, np.float64)
@@ -313,11 +328,16 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
         face_low, face_high, low, high = _ordered_candidates(groups[first], groups[second], local_1, local_2)
         candidates.append((face_low, face_high, low, high, np.full(face_low.shape, reach)))
     face_low, face_high, low, high, reach = (np.concatenate(column) for column in zip(*candidates))
-    if face_low.size:
-        _, _, distance = closest_points_triangles(low, high)
-        keep = distance <= reach
-        face_low, face_high = face_low[keep], face_high[keep]
-    return _sorted_unique_pairs(face_low, face_high, max(face_count, 1))
+    point_low, point_high, distance = closest_points_triangles(low, high)
+    keep = distance <= reach
+    keys, first = np.unique(face_low[keep] * max(face_count, 1) + face_high[keep], return_index=True)
+    return FacePairs(
+        keys // max(face_count, 1),
+        keys % max(face_count, 1),
+        point_low[keep][first],
+        point_high[keep][first],
+        distance[keep][first],
+    )
 
 
 def _object_static_flags(face_object, object_static):
@@ -368,4 +388,4 @@ def face_pairs_within_radius(triangles, face_object, radius, object_static=None)
         FaceGroup.from_triangles(faces, triangles[faces])
         for faces in _faces_of_objects(face_object, object_static.shape[0])
     ]
-    return face_pairs_between_groups(groups, object_static, radius, triangles.shape[0])
+    return face_pairs_between_groups(groups, object_static, radius, triangles.shape[0])[:2]

@@ -85,6 +85,19 @@ def test_per_object_margins_match_brute_force(seed):
     assert expected[0].size > plain[0].size  # the margins reach further
 
 
+def test_closest_points_are_those_of_each_pair():
+    triangles, face_object, object_static = random_scene(3)
+    groups = [
+        FaceGroup.from_triangles(np.flatnonzero(face_object == o), triangles[face_object == o])
+        for o in range(len(object_static))
+    ]
+    pairs = face_pairs_between_groups(groups, object_static, 0.05, len(triangles))
+    point_i, point_j, distance = closest_points_triangles(triangles[pairs.face_i], triangles[pairs.face_j])
+    assert pairs.face_i.size > 10 and (pairs.distance <= 0.05).all()
+    assert np.allclose(pairs.point_i, point_i, atol=1e-12) and np.allclose(pairs.point_j, point_j, atol=1e-12)
+    assert np.allclose(pairs.distance, distance, atol=1e-12)
+
+
 def test_pairs_are_ordered_unique_and_eligible():
     triangles, face_object, object_static = random_scene(2)
     face_i, face_j = face_pairs_within_radius(triangles, face_object, 0.1, object_static)

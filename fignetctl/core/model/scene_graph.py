@@ -345,10 +345,10 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
         if config.speculative
         else None
     )
-    pair_i, pair_j = collision_face_pairs_from_poses(
+    pairs = collision_face_pairs_from_poses(
         geometry, dynamic_history[1], positions[1], quaternions[1], config.collision_radius, margins
     )
-    node_vertex, node_object = select_nodes(geometry, pair_i, pair_j)
+    node_vertex, node_object = select_nodes(geometry, pairs.face_i, pairs.face_j)
     node_history = node_position_history(
         geometry, node_vertex, node_object, dynamic_history, positions, quaternions
     )
@@ -357,8 +357,7 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
     edge_sets[FACE_FACE] = face_face_edge_set(
         geometry,
         node_history[1],
-        pair_i,
-        pair_j,
+        pairs,
         vertex_nodes,
         config.max_vertex_offset,
         config.static_receivers,
@@ -369,7 +368,7 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
     num_dynamic = len(geometry.dynamic_vertices)
     touching = np.zeros(len(geometry.static), bool)
-    touching[geometry.face_object[np.concatenate([pair_i, pair_j])]] = True
+    touching[geometry.face_object[np.concatenate([pairs.face_i, pairs.face_j])]] = True
     return SceneGraph(
         graph, node_vertex, num_dynamic, node_history, geometry, (positions, quaternions), touching
     )
@@ -429,9 +428,10 @@ def speculative_margins(geometry, dynamic_history, positions, quaternions, cap):
 def collision_face_pairs_from_poses(
     geometry, dynamic_vertices_now, positions_now, quaternions_now, radius, margins=None
 ):
-    """The pairs of `collision_face_pairs`, with static objects' faces taken from the kept
-    FaceGroups of geometry.static_face_group: no work per static face that is not near a
-    moving one (after the first call at a pose).
+    """The pairs of `collision_face_pairs` (a broadphase.FacePairs, with their closest
+    points), with static objects' faces taken from the kept FaceGroups of
+    geometry.static_face_group: no work per static face that is not near a moving one (after
+    the first call at a pose).
 
     dynamic_vertices_now : (Vd, 3) world positions of geometry.dynamic_vertices at t
     positions_now : (O, 3), quaternions_now : (O, 4), the poses at t
@@ -581,32 +581,44 @@ def surface_edges_between(geometry, vertex_nodes):
 
 
 def face_face_edge_set(
-    geometry, node_now, pair_i, pair_j, vertex_nodes, max_vertex_offset=None, static_receivers=True
+    geometry, node_now, pairs, vertex_nodes, max_vertex_offset=None, static_receivers=True
 ):
-    """Collision hyper-edges for the face pairs, in both directions (into dynamic faces only
-    unless `static_receivers`)."""
-    sender_faces = np.concatenate([pair_i, pair_j])
-    receiver_faces = np.concatenate([pair_j, pair_i])
+    """Collision hyper-edges for the face pairs (a broadphase.FacePairs), in both directions
+    (into dynamic faces only unless `static_receivers`), from the pairs' closest points."""
+    sender_faces = np.concatenate([pairs.face_i, pairs.face_j])
+    receiver_faces = np.concatenate([pairs.face_j, pairs.face_i])
+    sender_points = np.concatenate([pairs.point_i, pairs.point_j])
+    receiver_points = np.concatenate([pairs.point_j, pairs.point_i])
+    distance = np.concatenate([pairs.distance, pairs.distance])
     if not static_receivers:
         into_dynamic = ~geometry.static[geometry.face_object[receiver_faces]]
         sender_faces, receiver_faces = sender_faces[into_dynamic], receiver_faces[into_dynamic]
+        sender_points, receiver_points = sender_points[into_dynamic], receiver_points[into_dynamic]
+        distance = distance[into_dynamic]
     sender_nodes = vertex_nodes.nodes(geometry.faces[sender_faces])
     receiver_nodes = vertex_nodes.nodes(geometry.faces[receiver_faces])
     features, sender_order, receiver_order = face_face_features(
-        node_now[sender_nodes], node_now[receiver_nodes], max_vertex_offset
+        node_now[sender_nodes],
+        node_now[receiver_nodes],
+        max_vertex_offset,
+        (sender_points, receiver_points, distance),
     )
     senders = np.take_along_axis(sender_nodes, sender_order, axis=1)
     receivers = np.take_along_axis(receiver_nodes, receiver_order, axis=1)
     return _edge_set(FACE_FACE, features, senders, receivers)
 
 
-def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=None):
+def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=None, closest=None):
     """(E, 3, 3) x2 -> features (E, 34) float32, sender_order (E, 3), receiver_order (E, 3).
 
     The orders give each triangle's vertices canonically (see the module docstring); vertex
     offsets from the closest point are clamped to `max_vertex_offset` in length (None: not).
+    closest : (sender point (E, 3), receiver point (E, 3), distance (E,)) when already known
+    (the broad phase computes them), else None: computed here.
     """
-    sender_point, receiver_point, distance = closest_points_triangles(sender_triangles, receiver_triangles)
+    sender_point, receiver_point, distance = (
+        closest_points_triangles(sender_triangles, receiver_triangles) if closest is None else closest
+    )
     sender_order = canonical_vertex_order(sender_triangles, sender_point)
     receiver_order = canonical_vertex_order(receiver_triangles, receiver_point)
     sender_relative = _clamped(

@@ -3,6 +3,7 @@ import pytest
 import torch
 import trimesh
 
+from fignetctl.core.model import scene_graph as scene_graph_module
 from fignetctl.core.model.graph import FACE_FACE, NODE_NODE
 from fignetctl.core.model.scene_graph import (
     GraphConfig,
@@ -45,6 +46,27 @@ def test_graph_has_every_node_and_collision_edges_only_near_contacts():
     features = face_face.features.numpy()
     assert (features[:, 3] <= 0.2 + 1e-6).all()
     assert NODE_NODE not in scene_graph.graph.edge_sets
+
+
+@pytest.mark.parametrize("static_receivers", [True, False])
+def test_face_face_features_from_the_broad_phases_points_equal_those_computed_per_edge(
+    static_receivers, monkeypatch
+):
+    """The edges reuse the closest points the broad phase found for each face pair, in both
+    directions; computed afresh per directed edge they give the same graph."""
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 2, 2] -= 0.9  # the sphere down onto the box: dynamic–dynamic pairs too
+    config = GraphConfig(collision_radius=0.2, static_receivers=static_receivers)
+    reused = build_scene_graph(geometry, positions, quaternions, config).graph.edge_sets[FACE_FACE]
+    monkeypatch.setattr(
+        scene_graph_module,
+        "face_face_features",
+        lambda senders, receivers, max_offset, closest: face_face_features(senders, receivers, max_offset),
+    )
+    afresh = build_scene_graph(geometry, positions, quaternions, config).graph.edge_sets[FACE_FACE]
+    assert reused.num_edges > 100
+    assert torch.equal(reused.senders, afresh.senders) and torch.equal(reused.receivers, afresh.receivers)
+    assert torch.allclose(reused.features, afresh.features, atol=1e-6)
 
 
 def test_speculative_pairs_reach_as_far_as_an_object_moves_in_a_step():

@@ -7,8 +7,8 @@ queue), and the settings take turns --rounds times
 so that a noisy host hurts them alike. The first setting is the serial design (graphs built in
 the training process, float32, one thread, static receivers, every MLP on its concatenated
 input: the bundled models' training); every other is reported as a ratio to it. The last
-runs two data-parallel processes under torchrun (each its own batch of --batch-size, so twice
-the samples per step).
+two run two data-parallel processes under torchrun (each its own batch of --batch-size, so
+twice the samples per step, as the paper's 8 devices each took 16 of its 128).
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
 
@@ -39,38 +39,55 @@ from fignetctl.core.model.training import (
 )
 
 FORWARD = EncodeProcessDecode.forward
-FIELDS = ("concatenated", "state", "static_receivers", "workers", "precision", "threads", "processes")
+FIELDS = (
+    "concatenated",
+    "state",
+    "static_receivers",
+    "workers",
+    "precision",
+    "threads",
+    "processes",
+    "batch",
+)
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
+SERIAL = (True, "positions", True, 0, "fp32", 1, 1)
+# batch: scenes per step and process (None: --batch-size)
 SETTINGS = {
-    "serial (positions, fp32, 1 thread, graphs in the loop, concatenated MLP inputs)": (
-        True,
-        "positions",
-        True,
-        0,
-        "fp32",
+    "serial (positions, fp32, 1 thread, graphs in the loop, concatenated MLP inputs)": (*SERIAL, None),
+    "serial at batch 4 (`train`'s default batch)": (*SERIAL, 4),
+    "velocities, no static receivers": (True, "velocities", False, 0, "fp32", 1, 1, None),
+    "+ first layers per distinct node": (False, "velocities", False, 0, "fp32", 1, 1, None),
+    "+ 1 worker process": (False, "velocities", False, 1, "fp32", 1, 1, None),
+    "+ bf16": (False, "velocities", False, 1, "bf16", 1, 1, None),
+    f"+ 2 threads ({FAST})": (False, "velocities", False, 1, FAST, 2, 1, None),
+    f"2 processes (torchrun), {FAST}, graphs in each": (False, "velocities", False, 0, FAST, 1, 2, None),
+    f"2 processes (torchrun), {FAST}, each fed by 1 worker": (
+        False,
+        "velocities",
+        False,
         1,
+        FAST,
         1,
+        2,
+        None,
     ),
-    "velocities, no static receivers": (True, "velocities", False, 0, "fp32", 1, 1),
-    "+ first layers per distinct node": (False, "velocities", False, 0, "fp32", 1, 1),
-    "+ 1 worker process": (False, "velocities", False, 1, "fp32", 1, 1),
-    "+ bf16": (False, "velocities", False, 1, "bf16", 1, 1),
-    f"+ 2 threads ({FAST})": (False, "velocities", False, 1, FAST, 2, 1),
-    f"2 processes (torchrun), {FAST}, graphs in each": (False, "velocities", False, 0, FAST, 1, 2),
 }
 if FAST != "bf16":
     del SETTINGS["+ bf16"]
 
 
 def measure(path, setting, args) -> float:
-    """Samples per second of one setting over args.steps steps after a warm-up."""
-    if setting[-1] > 1:
+    """Samples per second of one setting over args.steps steps of --batch-size after a warm-up
+    (as many samples in steps of its own batch, where it has one)."""
+    if dict(zip(FIELDS, setting))["processes"] > 1:
         return measure_distributed(path, setting, args)
     return measure_here(path, setting, args)
 
 
 def measure_here(path, setting, args) -> float:
-    concatenated, state, static_receivers, workers, precision, threads, processes = setting
+    concatenated, state, static_receivers, workers, precision, threads, processes, batch = setting
+    batch = batch or args.batch_size
+    steps = max(1, args.steps * args.batch_size // batch)
     torch.set_num_threads(threads)
     # the network as the bundled models trained: each MLP on its concatenated input (same weights)
     EncodeProcessDecode.forward = concatenated_forward if concatenated else FORWARD
@@ -78,8 +95,8 @@ def measure_here(path, setting, args) -> float:
         "fignet-star", args.size, 0.2, 256, state=state, static_receivers=static_receivers
     )
     config = TrainingSettings(
-        steps=args.warmup + args.steps,
-        batch_size=args.batch_size,
+        steps=args.warmup + steps,
+        batch_size=batch,
         loss="mse",
         precision=precision,
         normalizer_accumulation_steps=args.warmup,
@@ -94,17 +111,18 @@ def measure_here(path, setting, args) -> float:
         times[step] = clock()
 
     trainer.run(on_step=on_step)
-    return processes * args.steps * args.batch_size / (times[args.warmup + args.steps] - times[args.warmup])
+    return processes * steps * batch / (times[args.warmup + steps] - times[args.warmup])
 
 
 def measure_distributed(path, setting, args) -> float:
     """The setting under torchrun; rank 0 prints its rate on the last line."""
+    fields = dict(zip(FIELDS, setting))
     torchrun = Path(sys.executable).with_name("torchrun")
     command = [
         str(torchrun),
         "--standalone",
         "--nproc_per_node",
-        str(setting[-1]),
+        str(fields["processes"]),
         __file__,
         path,
         "--as-rank",
@@ -119,7 +137,7 @@ def measure_distributed(path, setting, args) -> float:
         command,
         capture_output=True,
         text=True,
-        env={**os.environ, "OMP_NUM_THREADS": str(setting[-2])},
+        env={**os.environ, "OMP_NUM_THREADS": str(fields["threads"])},
         check=True,
     )
     return float(result.stdout.strip().splitlines()[-1])
@@ -160,7 +178,8 @@ def main() -> None:
     settings = {
         name: setting
         for name, setting in SETTINGS.items()
-        if not args.single_core or setting[3:4] + setting[5:] == (0, 1, 1)
+        if not args.single_core
+        or [dict(zip(FIELDS, setting))[k] for k in ("workers", "threads", "processes")] == [0, 1, 1]
     }
     rates = {name: [] for name in settings}
     for _ in range(args.rounds):

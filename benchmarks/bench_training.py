@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 
@@ -39,37 +40,32 @@ from fignetctl.core.model.training import (
 )
 
 FORWARD = EncodeProcessDecode.forward
-FIELDS = (
-    "concatenated",
-    "state",
-    "static_receivers",
-    "workers",
-    "precision",
-    "threads",
-    "processes",
-    "batch",
-)
+
+
+class Setting(NamedTuple):
+    concatenated: bool  # every MLP on its concatenated input (the network as the bundled models trained)
+    state: str
+    static_receivers: bool
+    workers: int
+    precision: str
+    threads: int
+    processes: int
+    batch: int | None = None  # scenes per step and process (None: --batch-size)
+
+
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
-SERIAL = (True, "positions", True, 0, "fp32", 1, 1)
-# batch: scenes per step and process (None: --batch-size)
+SERIAL = Setting(True, "positions", True, 0, "fp32", 1, 1)
 SETTINGS = {
-    "serial (positions, fp32, 1 thread, graphs in the loop, concatenated MLP inputs)": (*SERIAL, None),
-    "serial at batch 4 (`train`'s default batch)": (*SERIAL, 4),
-    "velocities, no static receivers": (True, "velocities", False, 0, "fp32", 1, 1, None),
-    "+ first layers per distinct node": (False, "velocities", False, 0, "fp32", 1, 1, None),
-    "+ 1 worker process": (False, "velocities", False, 1, "fp32", 1, 1, None),
-    "+ bf16": (False, "velocities", False, 1, "bf16", 1, 1, None),
-    f"+ 2 threads ({FAST})": (False, "velocities", False, 1, FAST, 2, 1, None),
-    f"2 processes (torchrun), {FAST}, graphs in each": (False, "velocities", False, 0, FAST, 1, 2, None),
-    f"2 processes (torchrun), {FAST}, each fed by 1 worker": (
-        False,
-        "velocities",
-        False,
-        1,
-        FAST,
-        1,
-        2,
-        None,
+    "serial (positions, fp32, 1 thread, graphs in the loop, concatenated MLP inputs)": SERIAL,
+    "serial at batch 4 (`train`'s default batch)": SERIAL._replace(batch=4),
+    "velocities, no static receivers": Setting(True, "velocities", False, 0, "fp32", 1, 1),
+    "+ first layers per distinct node": Setting(False, "velocities", False, 0, "fp32", 1, 1),
+    "+ 1 worker process": Setting(False, "velocities", False, 1, "fp32", 1, 1),
+    "+ bf16": Setting(False, "velocities", False, 1, "bf16", 1, 1),
+    f"+ 2 threads ({FAST})": Setting(False, "velocities", False, 1, FAST, 2, 1),
+    f"2 processes (torchrun), {FAST}, graphs in each": Setting(False, "velocities", False, 0, FAST, 1, 2),
+    f"2 processes (torchrun), {FAST}, each fed by 1 worker": Setting(
+        False, "velocities", False, 1, FAST, 1, 2
     ),
 }
 if FAST != "bf16":
@@ -79,7 +75,7 @@ if FAST != "bf16":
 def measure(path, setting, args) -> float:
     """Samples per second of one setting over args.steps steps of --batch-size after a warm-up
     (as many samples in steps of its own batch, where it has one)."""
-    if dict(zip(FIELDS, setting))["processes"] > 1:
+    if setting.processes > 1:
         return measure_distributed(path, setting, args)
     return measure_here(path, setting, args)
 
@@ -116,13 +112,12 @@ def measure_here(path, setting, args) -> float:
 
 def measure_distributed(path, setting, args) -> float:
     """The setting under torchrun; rank 0 prints its rate on the last line."""
-    fields = dict(zip(FIELDS, setting))
     torchrun = Path(sys.executable).with_name("torchrun")
     command = [
         str(torchrun),
         "--standalone",
         "--nproc_per_node",
-        str(fields["processes"]),
+        str(setting.processes),
         __file__,
         path,
         "--as-rank",
@@ -137,7 +132,7 @@ def measure_distributed(path, setting, args) -> float:
         command,
         capture_output=True,
         text=True,
-        env={**os.environ, "OMP_NUM_THREADS": str(fields["threads"])},
+        env={**os.environ, "OMP_NUM_THREADS": str(setting.threads)},
         check=True,
     )
     return float(result.stdout.strip().splitlines()[-1])
@@ -171,15 +166,14 @@ def main() -> None:
     )  # one process of a torchrun setting
     args = parser.parse_args()
     if args.as_rank is not None:
-        rate = measure_here(args.data, json.loads(args.as_rank), args)
+        rate = measure_here(args.data, Setting(*json.loads(args.as_rank)), args)
         if os.environ.get("RANK", "0") == "0":
             print(rate)
         return
     settings = {
         name: setting
         for name, setting in SETTINGS.items()
-        if not args.single_core
-        or [dict(zip(FIELDS, setting))[k] for k in ("workers", "threads", "processes")] == [0, 1, 1]
+        if not args.single_core or (setting.workers, setting.threads, setting.processes) == (0, 1, 1)
     }
     rates = {name: [] for name in settings}
     for _ in range(args.rounds):
@@ -201,7 +195,7 @@ def main() -> None:
             "cpus": os.cpu_count(),
             "cpu": cpu_name(),
             "clock": "training thread's CPU time" if args.single_core else "wall",
-            "settings": {k: dict(zip(FIELDS, v)) for k, v in settings.items()},
+            "settings": {k: v._asdict() for k, v in settings.items()},
             "args": vars(args),
             "results": rows,
         }

@@ -59,10 +59,11 @@ def _face_static_flags(face_object, object_static):
 
 
 def _sorted_unique_pairs(face_i, face_j, face_count):
-    """Order each pair as (min, max), drop duplicates, sort lexicographically."""
+    """Order each pair as (min, max), drop duplicates, sort lexicographically; also the index
+    of each kept pair's first occurrence in the input."""
     low, high = np.minimum(face_i, face_j), np.maximum(face_i, face_j)
-    keys = np.unique(low.astype(np.int64) * face_count + high)
-    return keys // face_count, keys % face_count
+    keys, first = np.unique(low.astype(np.int64) * face_count + high, return_index=True)
+    return keys // face_count, keys % face_count, first
 
 
 def _pairs_within_exact_distance(triangles, face_i, face_j, radius):
@@ -113,7 +114,7 @@ def brute_force_face_pairs(triangles, face_object, radius, object_static=None, m
         face_i, face_j = _pairs_within_exact_distance(triangles, face_i, face_j, reach)
         found_i.append(face_i)
         found_j.append(face_j)
-    return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))
+    return _sorted_unique_pairs(np.concatenate(found_i), np.concatenate(found_j), max(face_count, 1))[:2]
 
 
 class _FaceBounds(NamedTuple):
@@ -329,15 +330,10 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
         candidates.append((face_low, face_high, low, high, np.full(face_low.shape, reach)))
     face_low, face_high, low, high, reach = (np.concatenate(column) for column in zip(*candidates))
     point_low, point_high, distance = closest_points_triangles(low, high)
-    keep = distance <= reach
-    keys, first = np.unique(face_low[keep] * max(face_count, 1) + face_high[keep], return_index=True)
-    return FacePairs(
-        keys // max(face_count, 1),
-        keys % max(face_count, 1),
-        point_low[keep][first],
-        point_high[keep][first],
-        distance[keep][first],
-    )
+    keep = np.flatnonzero(distance <= reach)
+    face_i, face_j, first = _sorted_unique_pairs(face_low[keep], face_high[keep], max(face_count, 1))
+    kept = keep[first]
+    return FacePairs(face_i, face_j, point_low[kept], point_high[kept], distance[kept])
 
 
 def _object_static_flags(face_object, object_static):

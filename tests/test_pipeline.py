@@ -28,8 +28,11 @@ def test_the_main_job_runs_every_stage_and_leaves_its_files(tmp_path):
         f"SCENE={scene}",
         f"FIGNETCTL={bin_dir / 'fignetctl'}",
         f"PYTHON={sys.executable}",
-        "NERF_FLAGS=--steps 200",
-        "EXTRACT_FLAGS=--threshold 15 --max-voxel 1",  # a 200-step field is coarse
+        # 300 steps: 100 of them on the final grid. At 200 the field is still on the coarse one
+        # (29 mm voxels, the ball 4 across), and whether its mesh matches the masks varies with
+        # the fit's seed and with the machine's arithmetic (1 of 6 seeds refused here).
+        "NERF_FLAGS=--steps 300",
+        "EXTRACT_FLAGS=--threshold 15 --max-voxel 1",  # a short fit's density is faint
         "FACES=300",
         "STEPS=6",
         "EVERY=3",

@@ -14,6 +14,13 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 
     torch.set_num_threads(1)
 
+
+def pytest_collection_modifyitems(items):
+    """The slow tests first: `pytest -n 2` then starts them while the quick ones fill the other
+    worker, instead of leaving one running alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 INDEPENDENT_FIXTURE = SHARED / "fixtures" / "independent-movi-b-v1.h5"
 

@@ -12,8 +12,15 @@ twice the samples per step, as the paper's 8 devices each took 16 of its 128).
 bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")`): emulated,
 it is several times slower than float32.
 
-    python benchmarks/bench_training.py data/movi-b-train.h5 --batch-size 16 --steps 12 --rounds 2 \
-        -o benchmarks/results/training-throughput-avx512-batch16.json
+The serial design runs on today's code (its graph building is today's). With --before DIR, a
+checkout of the trainer as it was just before the velocity state and the workers came in
+(`git worktree add DIR 7143ceb^`), that trainer itself is timed too, at batch 4 (its `train`
+default) and --batch-size, in a process that imports fignetctl from DIR, on a version 1 copy of
+the data (its reader knows no other), and every setting is also given as a ratio to it.
+
+    git worktree add /tmp/before 7143ceb^
+    python benchmarks/bench_training.py data/movi-b-train.h5 --batch-size 16 --steps 12 --rounds 3 \
+        --before /tmp/before -o benchmarks/results/training-throughput-avx512-batch16.json
 """
 
 from __future__ import annotations
@@ -21,13 +28,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import NamedTuple
 
+import h5py
 import torch
 
 from fignetctl.core.atomic import atomic_path
@@ -138,6 +148,54 @@ def measure_distributed(path, setting, args) -> float:
     return float(result.stdout.strip().splitlines()[-1])
 
 
+BEFORE = "the trainer when the work began (7143ceb^: graphs built in train_step, positions, fp32)"
+VELOCITY_FIELDS = ("velocities", "angular_velocities")  # what format version 2 added
+BEFORE_DEFAULT_BATCH = 4  # that trainer's `train --batch-size` default
+# Runs in a process that imports fignetctl from the checkout: that version's own API.
+BEFORE_SCRIPT = """
+import sys, time, torch, fignetctl
+from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
+checkout, data, size = sys.argv[1:4]
+batch, steps, warmup, seed = map(int, sys.argv[4:8])
+assert fignetctl.__file__.startswith(checkout), f"imported {fignetctl.__file__}, not the checkout's"
+torch.set_num_threads(1)
+config = TrainingConfig(steps=warmup + steps, batch_size=batch, normalizer_accumulation_steps=warmup,
+                        checkpoint_every=10**9, seed=seed)
+trainer = make_trainer(data, simulator_config_for("fignet-star", size, 0.2, 256), config)
+times = {}
+trainer.run(on_step=lambda step, loss: times.__setitem__(step, time.perf_counter()))
+print(steps * batch / (times[warmup + steps] - times[warmup]))
+"""
+
+
+def version_1_copy(path, folder) -> Path:
+    """A copy of a trajectory file without velocities, marked format version 1."""
+    copy = Path(folder) / "version-1.h5"
+    shutil.copyfile(path, copy)
+    with h5py.File(copy, "r+") as f:
+        velocities = []
+        f.visititems(
+            lambda name, _: velocities.append(name) if name.rsplit("/", 1)[-1] in VELOCITY_FIELDS else None
+        )
+        for name in velocities:
+            del f[name]
+        f.attrs["format_version"] = 1
+    return copy
+
+
+def measure_before(checkout, path, batch, args) -> float:
+    """Samples per second of the checkout's trainer at `batch` (as many samples as the others)."""
+    checkout = str(Path(checkout).resolve())
+    steps = max(1, args.steps * args.batch_size // batch)
+    command = [sys.executable, "-c", BEFORE_SCRIPT, checkout, str(path), args.size]
+    command += [str(v) for v in (batch, steps, args.warmup, args.seed)]
+    env = {**os.environ, "PYTHONPATH": checkout, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(command, capture_output=True, text=True, env=env, cwd=checkout, check=False)
+    if result.returncode != 0:
+        sys.exit(f"the trainer in {checkout} failed: {result.stderr.strip().splitlines()[-1:]}")
+    return float(result.stdout.strip().splitlines()[-1])
+
+
 def cpu_name() -> str:
     for line in Path("/proc/cpuinfo").read_text().splitlines() if Path("/proc/cpuinfo").exists() else []:
         if line.startswith("model name"):
@@ -162,6 +220,12 @@ def main() -> None:
         "the training thread, which other work on a busy host disturbs less than the wall clock",
     )
     parser.add_argument(
+        "--before",
+        metavar="DIR",
+        default=None,
+        help="a checkout of 7143ceb^ (git worktree add DIR 7143ceb^): time its trainer too",
+    )
+    parser.add_argument(
         "--as-rank", default=None, help=argparse.SUPPRESS
     )  # one process of a torchrun setting
     args = parser.parse_args()
@@ -175,20 +239,34 @@ def main() -> None:
         for name, setting in SETTINGS.items()
         if not args.single_core or (setting.workers, setting.threads, setting.processes) == (0, 1, 1)
     }
-    rates = {name: [] for name in settings}
-    for _ in range(args.rounds):
-        for name, setting in settings.items():
-            rates[name].append(measure(args.data, setting, args))
-            print(f"{name}: {rates[name][-1]:.2f} samples/s", flush=True)
-    baseline = statistics.median(rates[next(iter(settings))])
+    timers = {name: lambda s=setting: measure(args.data, s, args) for name, setting in settings.items()}
+    before_rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        if args.before is not None:
+            old_data = version_1_copy(args.data, folder)
+            for batch in dict.fromkeys((BEFORE_DEFAULT_BATCH, args.batch_size)):
+                before_rows.append(f"{BEFORE}, batch {batch}")
+                timers[before_rows[-1]] = lambda b=batch: measure_before(args.before, old_data, b, args)
+        rates = {name: [] for name in timers}
+        for _ in range(args.rounds):
+            for name, timer in timers.items():
+                rates[name].append(timer())
+                print(f"{name}: {rates[name][-1]:.2f} samples/s", flush=True)
+    medians = {name: statistics.median(r) for name, r in rates.items()}
+    baseline = medians[next(iter(settings))]
     rows = {
-        name: {"samples_per_s": statistics.median(r), "all": r, "ratio": statistics.median(r) / baseline}
+        name: {"samples_per_s": medians[name], "all": r, "ratio": medians[name] / baseline}
         for name, r in rates.items()
     }
+    if before_rows:
+        for row in rows.values():
+            row["ratio_to_before"] = row["samples_per_s"] / medians[before_rows[0]]
     unit = "samples per CPU-second" if args.single_core else "samples/s"
-    print(f"\n| setting | {unit} | × serial |\n|---|---|---|")
+    before_column = f" × {BEFORE_DEFAULT_BATCH}-batch trainer of 7143ceb^ |" if before_rows else ""
+    print(f"\n| setting | {unit} | × serial |{before_column}\n|---|---|---|{'---|' if before_rows else ''}")
     for name, row in rows.items():
-        print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |")
+        before_cell = f" {row['ratio_to_before']:.2f} |" if before_rows else ""
+        print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |{before_cell}")
     if args.output:
         result = {
             "data": args.data,

@@ -1,0 +1,38 @@
+"""benchmarks/bench_training.py's version 1 copy, which the trainer of before the velocity state
+reads: the same file less its velocities, read back by today's reader as version 1."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load_bench():
+    spec = importlib.util.spec_from_file_location("bench_training", ROOT / "benchmarks" / "bench_training.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["bench_training"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_version_1_copy_drops_the_velocities_and_keeps_the_frames(tmp_path, box_drop):
+    from fignetctl.core.trajectory import read_trajectories, write_trajectories
+
+    original = write_trajectories(tmp_path / "v2.h5", box_drop)
+    folder = tmp_path / "copy"
+    folder.mkdir()
+    copy = load_bench().version_1_copy(original, folder)
+    with h5py.File(copy) as f:
+        assert f.attrs["format_version"] == 1
+    before, after = read_trajectories(original), read_trajectories(copy)
+    assert next(iter(before.trajectories.values())).has_velocities
+    ((key, trajectory),) = after.trajectories.items()
+    assert not trajectory.has_velocities
+    np.testing.assert_array_equal(trajectory.positions, before.trajectories[key].positions)
+    np.testing.assert_array_equal(trajectory.quaternions, before.trajectories[key].quaternions)
+    with h5py.File(original) as f:
+        assert f.attrs["format_version"] == 2  # the original is untouched

@@ -13,7 +13,7 @@ bf16 settings run only on a CPU with native bfloat16 (`resolve_precision("auto")
 it is several times slower than float32.
 
 The serial design runs on today's code (its graph building is today's). With --before DIR, a
-checkout of the trainer as it was just before the velocity state and the workers came in
+checkout of commit 7143ceb^, the serial trainer before the velocity state and the workers
 (`git worktree add DIR 7143ceb^`), that trainer itself is timed too, at batch 4 (its `train`
 default) and --batch-size, in a process that imports fignetctl from DIR, on a version 1 copy of
 the data (its reader knows no other), and every setting is also given as a ratio to it.
@@ -148,7 +148,7 @@ def measure_distributed(path, setting, args) -> float:
     return float(result.stdout.strip().splitlines()[-1])
 
 
-BEFORE = "the trainer when the work began (7143ceb^: graphs built in train_step, positions, fp32)"
+BEFORE = "the serial trainer of 7143ceb^ (graphs built in train_step, positions, fp32)"
 VELOCITY_FIELDS = ("velocities", "angular_velocities")  # what format version 2 added
 BEFORE_DEFAULT_BATCH = 4  # that trainer's `train --batch-size` default
 # Runs in a process that imports fignetctl from the checkout: that version's own API.

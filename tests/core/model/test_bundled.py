@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 
+from fignetctl.core.containers import WEIGHTS_HASH_KEY
 from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.checkpoint import BUNDLED, bundled_model_path, read_checkpoint_payload
 from fignetctl.core.model.rollout import rollout
@@ -16,7 +17,8 @@ def test_bundled_checkpoints_are_small_and_differ_only_in_surface_edges():
     for name in BUNDLED:
         path = bundled_model_path(name)
         assert path.stat().st_size < 5 * 2**20
-        assert "training_state" not in read_checkpoint_payload(path)
+        payload = read_checkpoint_payload(path)  # checks the weights against their checksum
+        assert "training_state" not in payload and payload.get(WEIGHTS_HASH_KEY)
         configs[name] = load_model(name).config
     star, full = configs["fignet-star-movi-b"], configs["fignet-movi-b"]
     assert not star.graph.surface_edges and full.graph.surface_edges

@@ -229,6 +229,8 @@ def main() -> None:
         "--as-rank", default=None, help=argparse.SUPPRESS
     )  # one process of a torchrun setting
     args = parser.parse_args()
+    if args.before is not None and not (Path(args.before) / "fignetctl" / "core").is_dir():
+        parser.error(f"--before {args.before}: not a fignetctl checkout (git worktree add DIR 7143ceb^)")
     if args.as_rank is not None:
         rate = measure_here(args.data, Setting(*json.loads(args.as_rank)), args)
         if os.environ.get("RANK", "0") == "0":

@@ -1,22 +1,10 @@
 """benchmarks/bench_training.py's version 1 copy, which the trainer of before the velocity state
 reads: the same file less its velocities, read back by today's reader as version 1."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import h5py
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def load_bench():
-    spec = importlib.util.spec_from_file_location("bench_training", ROOT / "benchmarks" / "bench_training.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_training"] = module
-    spec.loader.exec_module(module)
-    return module
+from tests.bench import load_benchmark
 
 
 def test_version_1_copy_drops_the_velocities_and_keeps_the_frames(tmp_path, box_drop):
@@ -25,7 +13,7 @@ def test_version_1_copy_drops_the_velocities_and_keeps_the_frames(tmp_path, box_
     original = write_trajectories(tmp_path / "v2.h5", box_drop)
     folder = tmp_path / "copy"
     folder.mkdir()
-    copy = load_bench().version_1_copy(original, folder)
+    copy = load_benchmark("bench_training").version_1_copy(original, folder)
     with h5py.File(copy) as f:
         assert f.attrs["format_version"] == 1
     before, after = read_trajectories(original), read_trajectories(copy)

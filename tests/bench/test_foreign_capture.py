@@ -2,7 +2,6 @@
 capture-poses through the CLI on a small capture it rendered: a table on a floor, which the
 project's own renderer never makes (benchmarks/bench_foreign_capture.py is the full run)."""
 
-import importlib.util
 import json
 import math
 import subprocess
@@ -12,21 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench import load_benchmark
+
 FIGNETCTL = str(Path(sys.executable).parent / "fignetctl")
 
 
-def _load_renderer():
-    spec = importlib.util.spec_from_file_location(
-        "foreign_capture", ROOT / "benchmarks" / "foreign_capture.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("foreign_capture", module)  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
-
-
-fc = _load_renderer()
+fc = load_benchmark("foreign_capture")
 
 
 def camera_rays(K, c2w, width, height):

@@ -3,24 +3,18 @@ masks scores 1 per axis, no Chamfer distance and IoU 1; one scaled by 1.2 along 
 moved and scaled like capture-poses', scores 1.2 along x and fails the bar."""
 
 import dataclasses
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.bench import load_benchmark
 
 
 @pytest.fixture(scope="module")
 def mesh_vs_truth():
-    spec = importlib.util.spec_from_file_location("mesh_vs_truth", ROOT / "benchmarks" / "mesh_vs_truth.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["mesh_vs_truth"] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("mesh_vs_truth")
 
 
 def extraction_folder(folder, capture, frame, stretch=1.0):

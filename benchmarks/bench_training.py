@@ -48,6 +48,7 @@ from fignetctl.core.model.training import (
     resolve_precision,
     simulator_config_for,
 )
+from fignetctl.core.trajectory import VELOCITY_FIELDS
 
 FORWARD = EncodeProcessDecode.forward
 
@@ -82,6 +83,11 @@ if FAST != "bf16":
     del SETTINGS["+ bf16"]
 
 
+def steps_at(batch, args) -> int:
+    """Timed steps at `batch`: as many samples as args.steps steps of --batch-size."""
+    return max(1, args.steps * args.batch_size // batch)
+
+
 def measure(path, setting, args) -> float:
     """Samples per second of one setting over args.steps steps of --batch-size after a warm-up
     (as many samples in steps of its own batch, where it has one)."""
@@ -93,7 +99,7 @@ def measure(path, setting, args) -> float:
 def measure_here(path, setting, args) -> float:
     concatenated, state, static_receivers, workers, precision, threads, processes, batch = setting
     batch = batch or args.batch_size
-    steps = max(1, args.steps * args.batch_size // batch)
+    steps = steps_at(batch, args)
     torch.set_num_threads(threads)
     # the network as the bundled models trained: each MLP on its concatenated input (same weights)
     EncodeProcessDecode.forward = concatenated_forward if concatenated else FORWARD
@@ -149,7 +155,6 @@ def measure_distributed(path, setting, args) -> float:
 
 
 BEFORE = "the serial trainer of 7143ceb^ (graphs built in train_step, positions, fp32)"
-VELOCITY_FIELDS = ("velocities", "angular_velocities")  # what format version 2 added
 BEFORE_DEFAULT_BATCH = 4  # that trainer's `train --batch-size` default
 # Runs in a process that imports fignetctl from the checkout: that version's own API.
 BEFORE_SCRIPT = """
@@ -157,13 +162,14 @@ import sys, time, torch, fignetctl
 from fignetctl.core.model.training import TrainingConfig, make_trainer, simulator_config_for
 checkout, data, size = sys.argv[1:4]
 batch, steps, warmup, seed = map(int, sys.argv[4:8])
+clock = time.thread_time if sys.argv[8] == "thread" else time.perf_counter  # as --single-core times
 assert fignetctl.__file__.startswith(checkout), f"imported {fignetctl.__file__}, not the checkout's"
 torch.set_num_threads(1)
 config = TrainingConfig(steps=warmup + steps, batch_size=batch, normalizer_accumulation_steps=warmup,
                         checkpoint_every=10**9, seed=seed)
 trainer = make_trainer(data, simulator_config_for("fignet-star", size, 0.2, 256), config)
 times = {}
-trainer.run(on_step=lambda step, loss: times.__setitem__(step, time.perf_counter()))
+trainer.run(on_step=lambda step, loss: times.__setitem__(step, clock()))
 print(steps * batch / (times[warmup + steps] - times[warmup]))
 """
 
@@ -186,9 +192,10 @@ def version_1_copy(path, folder) -> Path:
 def measure_before(checkout, path, batch, args) -> float:
     """Samples per second of the checkout's trainer at `batch` (as many samples as the others)."""
     checkout = str(Path(checkout).resolve())
-    steps = max(1, args.steps * args.batch_size // batch)
+    steps = steps_at(batch, args)
     command = [sys.executable, "-c", BEFORE_SCRIPT, checkout, str(path), args.size]
     command += [str(v) for v in (batch, steps, args.warmup, args.seed)]
+    command.append("thread" if args.single_core else "wall")
     env = {**os.environ, "PYTHONPATH": checkout, "OMP_NUM_THREADS": "1"}
     result = subprocess.run(command, capture_output=True, text=True, env=env, cwd=checkout, check=False)
     if result.returncode != 0:

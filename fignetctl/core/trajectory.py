@@ -152,7 +152,7 @@ _OBJECT_FIELDS = {
     "restitution": ("f", ()),
 }
 _FRAME_FIELDS = {"positions": 3, "quaternions": 4}
-_VELOCITY_FIELDS = ("velocities", "angular_velocities")  # optional, both or neither (version 2)
+VELOCITY_FIELDS = ("velocities", "angular_velocities")  # optional, both or neither (version 2)
 
 
 def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gzip") -> Path:
@@ -185,7 +185,7 @@ def _write_one(group, trajectory: Trajectory, compression) -> None:
 
     names = [str(n) for n in trajectory.mesh_names]
     group.create_dataset("mesh_names", data=names, dtype=h5py.string_dtype("utf-8"))
-    for field in (*_FRAME_FIELDS, *_VELOCITY_FIELDS):
+    for field in (*_FRAME_FIELDS, *VELOCITY_FIELDS):
         value = getattr(trajectory, field)
         if value is not None:
             _checked_dataset(group, field, np.asarray(value, np.float32), compression)
@@ -361,8 +361,8 @@ def _read_one(group, where: str) -> Trajectory:
         [_plain(n) for n in np.atleast_1d(_read_dataset(group, "mesh_names", where))], dtype=object
     )
     values = {field: _read_dataset(group, field, where) for field in required[1:]}
-    velocities = {field: _read_dataset(group, field, where) for field in _VELOCITY_FIELDS if field in group}
-    known = {*required, *_VELOCITY_FIELDS}
+    velocities = {field: _read_dataset(group, field, where) for field in VELOCITY_FIELDS if field in group}
+    known = {*required, *VELOCITY_FIELDS}
     extras = {k: _read_dataset(group, k, where) for k in group.keys() if k not in known}
     return Trajectory(mesh_names=names, extras=extras, **values, **velocities)
 
@@ -477,9 +477,9 @@ def _validate_trajectory(t: Trajectory, meshes: dict, where: str) -> None:
 
 
 def _validate_velocities(t: Trajectory, where: str) -> None:
-    present = [field for field in _VELOCITY_FIELDS if getattr(t, field) is not None]
+    present = [field for field in VELOCITY_FIELDS if getattr(t, field) is not None]
     if len(present) == 1:
-        missing = next(field for field in _VELOCITY_FIELDS if field not in present)
+        missing = next(field for field in VELOCITY_FIELDS if field not in present)
         raise FormatError(f"{where}: has {present[0]!r} but not {missing!r}; give both or neither")
     for field in present:
         value = np.asarray(getattr(t, field))

@@ -1,0 +1,43 @@
+"""benchmarks/long_rollout.py: the floor depths it reports, of the rollout and of the recording."""
+
+import itertools
+
+import numpy as np
+import torch
+
+from fignetctl.core.model.network import PRESETS
+from fignetctl.core.model.rollout import guards_for
+from fignetctl.core.model.scene_data import scene_from_trajectory
+from fignetctl.core.model.scene_graph import build_scene_graph
+from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+from fignetctl.core.transforms import quat_to_matrix
+from tests.bench import load_benchmark
+from tests.conftest import box_drop_file
+
+long_rollout = load_benchmark("long_rollout")
+
+
+def test_the_recorded_depth_is_the_deepest_corner_of_the_recorded_box_below_the_floor():
+    """A unit box recorded falling through the floor (z = 0): the depth of the recording over
+    the rolled-out frames is the lowest of its 8 corners, computed here from the poses."""
+    data = box_drop_file(frames=30, dt=1 / 30, height=0.9)
+    torch.manual_seed(0)
+    simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"]))
+    scene = scene_from_trajectory(data, "00000", simulator.config)
+    frames = (scene.positions[:3], scene.quaternions[:3])  # normalizer statistics of one graph
+    simulator(build_scene_graph(scene.geometry, *frames, simulator.config.graph).graph, accumulate=True)
+    simulator.normalized_targets(torch.randn(64, 3) * 0.01, accumulate=True)
+    simulator.eval()
+    guards = guards_for(data.dt, data.gravity, False, False, False)
+    row = long_rollout.one_trajectory(simulator, scene, 12, guards=guards)
+    trajectory = data.trajectories["00000"]
+    corners = np.array(list(itertools.product((-0.5, 0.5), repeat=3)))
+    lowest = min(
+        (corners @ quat_to_matrix(trajectory.quaternions[t, 1].astype(float)).T)[:, 2].min()
+        + trajectory.positions[t, 1, 2]
+        for t in range(row["frames"])
+    )
+    assert row["frames"] == 14 == row["recorded_frames"]
+    assert lowest < -0.1  # the recording went through the floor within the frames
+    np.testing.assert_allclose(row["recorded_max_penetration_m"], -lowest, atol=1e-5)
+    assert np.isfinite(row["max_penetration_m"]) and row["max_penetration_m"] >= 0

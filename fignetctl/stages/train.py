@@ -30,6 +30,13 @@ class Settings:
         low=4,
         high=10**6,
     )
+    decimation: str = setting(
+        "closest",
+        "closest: quadric decimation unless it moves the surface over 1 % of the object's size, then the "
+        "nearer of it and a surface-preserving reduction; quadric: as the models before this option, "
+        "which lost the movi-b mug's thin parts (docs/simulator.md).",
+        choices=("closest", "quadric"),
+    )
     max_static_edge: float = setting(
         0.0,
         "Subdivide static meshes (the floor) to edges no longer than this (m); 0 keeps them whole.",
@@ -158,6 +165,7 @@ def run(
         settings.state,
         settings.static_receivers,
         settings.mass_feature == "log",
+        settings.decimation,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

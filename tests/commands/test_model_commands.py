@@ -94,6 +94,18 @@ def test_train_mass_feature_option_reaches_the_model_file(trained, tmp_path):
     assert "Traceback" not in result.output
 
 
+def test_train_decimation_option_reaches_the_model_file(trained, tmp_path):
+    from fignetctl.core.model.checkpoint import load_checkpoint
+
+    _, data, model = trained
+    assert load_checkpoint(model).config.decimation == "closest"
+    out = tmp_path / "quadric.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--decimation", "quadric"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert load_checkpoint(out).config.decimation == "quadric"
+
+
 def test_train_refuses_existing_output_and_resumes_on_request(trained):
     folder, data, model = trained
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])

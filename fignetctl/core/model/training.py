@@ -520,6 +520,7 @@ def simulator_config_for(
     state="positions",
     static_receivers=True,
     log_mass=False,
+    decimation="closest",
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
@@ -540,6 +541,7 @@ def simulator_config_for(
         network=network,
         graph=graph,
         max_faces_per_object=max_faces,
+        decimation=decimation,
         max_static_edge=max_static_edge,
         state=state,
     )

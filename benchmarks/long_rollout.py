@@ -45,11 +45,11 @@ def one_trajectory(simulator, scene, steps, **options):
     frames = len(positions)  # the recorded frames the rollout covers (all, when it is longer)
     recorded_low = lowest_dynamic_z(scene, scene.positions[:frames], scene.quaternions[:frames])
     dynamic = ~scene.geometry.static
-    window = min(SETTLE_WINDOW, len(positions))  # all of a shorter rollout
+    window = min(SETTLE_WINDOW, frames)  # all of a shorter rollout
     drift = np.linalg.norm(positions[-1, dynamic] - positions[-window, dynamic], axis=1)
     return {
         "trajectory": scene.name,
-        "frames": int(positions.shape[0]),
+        "frames": frames,
         "finite": finite,
         "max_penetration_m": float(max(0.0, floor - lowest_dynamic_z(scene, positions, quaternions).min())),
         "recorded_max_penetration_m": float(max(0.0, floor - recorded_low.min())),
@@ -85,10 +85,10 @@ def main():
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    if args.decimation:
-        simulator.config = dataclasses.replace(simulator.config, decimation=args.decimation)
+    meshes = {"decimation": args.decimation or simulator.config.decimation}
     if args.max_faces is not None:
-        simulator.config = dataclasses.replace(simulator.config, max_faces_per_object=args.max_faces or None)
+        meshes["max_faces_per_object"] = args.max_faces or None
+    simulator.config = dataclasses.replace(simulator.config, **meshes)
     data = read_trajectories(args.data)
     options = {"guards": guards_for(data.dt, data.gravity, args.sleep, args.free_flight, args.keep_out)}
     cache = {}

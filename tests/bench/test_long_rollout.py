@@ -3,16 +3,14 @@
 import itertools
 
 import numpy as np
-import torch
 
-from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import guards_for
 from fignetctl.core.model.scene_data import scene_from_trajectory
-from fignetctl.core.model.scene_graph import build_scene_graph
-from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
+from fignetctl.core.model.simulator import SimulatorConfig
 from fignetctl.core.transforms import quat_to_matrix
 from tests.bench import load_benchmark
 from tests.conftest import box_drop_file
+from tests.core.model.test_free_flight import untrained_simulator
 
 long_rollout = load_benchmark("long_rollout")
 
@@ -21,13 +19,8 @@ def test_the_recorded_depth_is_the_deepest_corner_of_the_recorded_box_below_the_
     """A unit box recorded falling through the floor (z = 0): the depth of the recording over
     the rolled-out frames is the lowest of its 8 corners, computed here from the poses."""
     data = box_drop_file(frames=30, dt=1 / 30, height=0.9)
-    torch.manual_seed(0)
-    simulator = LearnedSimulator(SimulatorConfig(network=PRESETS["tiny"]))
-    scene = scene_from_trajectory(data, "00000", simulator.config)
-    frames = (scene.positions[:3], scene.quaternions[:3])  # normalizer statistics of one graph
-    simulator(build_scene_graph(scene.geometry, *frames, simulator.config.graph).graph, accumulate=True)
-    simulator.normalized_targets(torch.randn(64, 3) * 0.01, accumulate=True)
-    simulator.eval()
+    scene = scene_from_trajectory(data, "00000", SimulatorConfig())
+    simulator = untrained_simulator(scene)
     guards = guards_for(data.dt, data.gravity, False, False, False)
     row = long_rollout.one_trajectory(simulator, scene, 12, guards=guards)
     trajectory = data.trajectories["00000"]

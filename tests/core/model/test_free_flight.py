@@ -36,10 +36,10 @@ def untrained_simulator(scene):
 
 
 def three_frames(scene):
-    """Frames t−1, t and t (read for static objects only) of a two-frame scene."""
+    """Frames t−1, t and t (read for static objects only) of a scene's first two frames."""
     return (
-        np.concatenate([scene.positions, scene.positions[1:]]),
-        np.concatenate([scene.quaternions, scene.quaternions[1:]]),
+        np.concatenate([scene.positions[:2], scene.positions[1:2]]),
+        np.concatenate([scene.quaternions[:2], scene.quaternions[1:2]]),
     )
 
 

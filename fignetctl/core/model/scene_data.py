@@ -66,7 +66,7 @@ def decimated_mesh(vertices, faces, max_faces, method="closest"):
     """(V, 3), (F, 3) -> the mesh with at most `max_faces` faces (unchanged if already so).
 
     'quadric': quadric error decimation of the mesh as given. 'closest': the same, unless that
-    moves the surface (`surface_deviation`) by more than DEVIATION_TOLERANCE of the mesh's size;
+    moves the surface (`vertex_hausdorff`) by more than DEVIATION_TOLERANCE of the mesh's size;
     then the mesh is first reduced to the fewest faces that keep its surface
     (`surface_preserving`: a polyhedron subdivided for rendering, as the movi-b shapes are,
     gets its facets back), decimated from there if still too fine, and used if it deviates
@@ -83,7 +83,7 @@ def decimated_mesh(vertices, faces, max_faces, method="closest"):
     direct = _quadric_decimation(vertices, faces, max_faces)
     if method == "quadric":
         return direct
-    deviation = surface_deviation((vertices, faces), direct)
+    deviation = vertex_hausdorff((vertices, faces), direct)
     if deviation <= DEVIATION_TOLERANCE * float(np.ptp(vertices, axis=0).max()):
         return direct
     reduced = surface_preserving(vertices, faces)
@@ -91,7 +91,7 @@ def decimated_mesh(vertices, faces, max_faces, method="closest"):
         return direct
     if len(reduced[1]) > max_faces:
         reduced = _quadric_decimation(*reduced, max_faces)
-    return reduced if surface_deviation((vertices, faces), reduced) < deviation else direct
+    return reduced if vertex_hausdorff((vertices, faces), reduced) < deviation else direct
 
 
 def _quadric_decimation(vertices, faces, max_faces):
@@ -103,12 +103,12 @@ def _quadric_decimation(vertices, faces, max_faces):
     return np.asarray(simplified.vertices, np.float64), np.asarray(simplified.faces, np.int64)
 
 
-SURFACE_TOLERANCE = 1e-5
+SIMPLIFY_TOLERANCE = 1e-5
 """`surface_preserving` moves no surface by more than this fraction of the mesh's largest side."""
 
 
 def surface_preserving(vertices, faces):
-    """The mesh with the fewest faces whose surface is within SURFACE_TOLERANCE of it (edges
+    """The mesh with the fewest faces whose surface is within SIMPLIFY_TOLERANCE of it (edges
     collapsed by manifold3d's `simplify`: coplanar subdivisions go, curved surfaces stay), or
     None when the mesh is not a closed manifold that manifold3d accepts."""
     import manifold3d
@@ -120,14 +120,14 @@ def surface_preserving(vertices, faces):
     solid = manifold3d.Manifold(mesh)
     if solid.status() != manifold3d.Error.NoError or solid.is_empty():
         return None
-    simplified = solid.simplify(SURFACE_TOLERANCE * float(np.ptp(vertices, axis=0).max())).to_mesh64()
+    simplified = solid.simplify(SIMPLIFY_TOLERANCE * float(np.ptp(vertices, axis=0).max())).to_mesh64()
     return (
         np.array(simplified.vert_properties[:, :3], np.float64),  # a writable copy
         np.array(simplified.tri_verts, np.int64),
     )
 
 
-def surface_deviation(first, second) -> float:
+def vertex_hausdorff(first, second) -> float:
     """The largest distance from a vertex of either (vertices, faces) mesh to the other's
     surface (a two-sided Hausdorff distance over the vertices)."""
     import trimesh

@@ -1,11 +1,14 @@
 """`fignetctl train`: train FIGNet* (or FIGNet) on a trajectory file, resumably."""
 
+import os
+
 import click
 
 from fignetctl.commands import options
 from fignetctl.stages import train as stage
 
 FILE = click.Path(dir_okay=False)
+TIME_LIMIT_EXIT = 75  # sysexits' EX_TEMPFAIL: not finished, run again
 
 
 @click.command("train")
@@ -31,13 +34,15 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
     Adam with the learning rate decaying exponentially (--learning-rate, 3e-4 -> 3e-5) over --steps, noise on
     the input history, MSE (or --loss huber) on normalized accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it with the same
-    weights an uninterrupted run would reach. Runs data-parallel under torchrun (see docs/simulator.md).
+    weights an uninterrupted run would reach (--resume with no --output yet starts the run), and
+    --time-limit stops it, checkpointed, with exit code 75 (0 under torchrun). Runs data-parallel under torchrun (see docs/simulator.md).
 
     \b
     Example:
       fignetctl make-dataset --preset movi-b -n 200 --seed 1 -o train.h5
       fignetctl train train.h5 -o model.pt --steps 20000 --workers 1
       fignetctl train train.h5 -o model.pt --steps 20000 --resume   # after an interruption
+      fignetctl train train.h5 -o model.pt --steps 20000 --resume --time-limit 9   # exit 75: not done yet
       fignetctl train train.h5 -o tuned.pt --steps 3000 --init-from model.pt --learning-rate 2e-4 2e-5
     """
     replace = overwrite or settings["resume"]  # a resumed run's outputs go on
@@ -48,5 +53,14 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
     rerun_path = options.optional_output(rerun_path, replace, "--rerun")
     settings = options.settings_from(stage.Settings, settings)
     summary = stage.run(dataset, path, settings, init_from, log_csv, rerun_path, overwrite, options.progress)
+    if summary["stopped_early"]:
+        if summary["rank"] == 0:
+            click.echo(
+                f"train: stopped at the time limit after step {summary['steps']} of {settings.steps}, "
+                f"checkpointed in {path}; run the same command with --resume to go on",
+                err=True,
+            )
+        # torchrun reports a process's other exit codes as a crash, with a traceback of its own
+        raise click.exceptions.Exit(0 if "TORCHELASTIC_RUN_ID" in os.environ else TIME_LIMIT_EXIT)
     if summary["rank"] == 0:
         click.echo(str(path))

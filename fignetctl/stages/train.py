@@ -97,6 +97,14 @@ class Settings:
         500, "Write --output (and --log-csv) every this many steps.", low=1, high=10**9
     )
     resume: bool = setting(False, "Continue the run saved in --output exactly where it stopped.")
+    time_limit: float | None = setting(
+        None,
+        "Stop after this many minutes, checkpointed, with exit code 75 (0 under torchrun, which reports "
+        "other codes as a crash); the same command with --resume goes on (chunks for a batch queue).",
+        low=0,
+        low_open=True,
+        metavar="MINUTES",
+    )
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
     device: str = setting(
         "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
@@ -126,7 +134,8 @@ def run(
     loss and seconds at every checkpoint, `rerun_path` the loss curve; `settings.rerun_connect`
     streams the curve to the viewer there as training goes (a warning through `report`, stderr
     when None, if none listens). Data-parallel under torchrun: every rank trains, rank 0 writes and
-    streams. Returns the summary (output, steps, loss, rank)."""
+    streams. `settings.time_limit` stops the run early, checkpointed (`stopped_early` in the
+    summary). Returns the summary (output, steps, loss, rank, stopped_early)."""
     from fignetctl.core.model.training import (
         TrainingSettings,
         make_trainer,
@@ -202,10 +211,11 @@ def run(
             if live:
                 log_scalar_step(*live, "train", step, {"loss": loss})
 
-        trainer.run(
+        stopped = trainer.run(
             output,
             on_step=on_step,
             on_checkpoint=lambda: log_csv and trainer.rank == 0 and write_loss_csv(log_csv, trainer.history),
+            time_limit=None if settings.time_limit is None else 60 * settings.time_limit,
         )
     if trainer.rank == 0 and rerun_path:
         from fignetctl.core.viz import log_scalars_to_rerun
@@ -217,4 +227,5 @@ def run(
         "steps": trainer.step,
         "loss": history[-1]["loss"] if history else None,
         "rank": trainer.rank,
+        "stopped_early": stopped,
     }

@@ -68,3 +68,16 @@ def test_two_processes_train_and_resume_together(tmp_path):
         cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8", "--resume"]
     )
     assert single.exit_code == 1 and "resume it with as many" in single.output
+
+
+@pytest.mark.skipif(
+    not (TORCHRUN.exists() and FIGNETCTL.exists()),
+    reason="torchrun or the fignetctl script is not installed beside this python",
+)
+def test_two_processes_stop_together_at_the_time_limit(tmp_path):
+    data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    model = tmp_path / "model.pt"
+    stopped = _torchrun_train(data, model, 5, "--time-limit", "1e-9")
+    assert stopped.returncode == 0 and "stopped at the time limit after step 1 of 5" in stopped.stderr
+    state = torch.load(model, weights_only=True)["training_state"]
+    assert state["step"] == 1 and state["world_size"] == 2

@@ -362,20 +362,35 @@ class Trainer:
         self.optimizer.step()
         self.step += 1
 
-    def run(self, checkpoint_path=None, on_step=None, until_step=None, on_checkpoint=None):
+    def run(
+        self, checkpoint_path=None, on_step=None, until_step=None, on_checkpoint=None, time_limit=None
+    ) -> bool:
         """Train until config.steps (or `until_step`), checkpointing every config.checkpoint_every
-        steps (and calling `on_checkpoint()` after each checkpoint)."""
-        started = time.perf_counter() - (self.history[-1]["seconds"] if self.history else 0.0)
+        steps (and calling `on_checkpoint()` after each checkpoint). With `time_limit` (seconds
+        of this call), stop at the first step that ends past it, checkpointed, every rank at the
+        same step. Returns whether it stopped there before its last step."""
+        now = time.perf_counter()
+        started = now - (self.history[-1]["seconds"] if self.history else 0.0)
+        deadline = None if time_limit is None else now + time_limit
         last_step = self.config.steps if until_step is None else min(until_step, self.config.steps)
         for batch in batch_stream(self.batches, self.step, last_step, self.workers):
             loss = self.train_step(batch)
             self.history.append({"step": self.step, "loss": loss, "seconds": time.perf_counter() - started})
             if on_step is not None:
                 on_step(self.step, loss)
-            if checkpoint_path and (self.step % self.config.checkpoint_every == 0 or self.step == last_step):
+            out_of_time = (
+                deadline is not None
+                and self.step < last_step
+                and any(distributed.gather_from_all(time.perf_counter() >= deadline))
+            )
+            due = self.step % self.config.checkpoint_every == 0 or self.step == last_step
+            if checkpoint_path and (due or out_of_time):
                 self.save(checkpoint_path)
                 if on_checkpoint is not None:
                     on_checkpoint()
+            if out_of_time:
+                return True
+        return False
 
     def state(self) -> dict:
         """Everything a resume needs (the batches follow from the step)."""

@@ -52,6 +52,20 @@ def test_resume_gives_the_same_weights_as_an_uninterrupted_run(box_file, tmp_pat
         torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=0, atol=0)
 
 
+def test_a_time_limit_stops_at_a_checkpoint_and_resumed_chunks_reach_the_same_weights(box_file, tmp_path):
+    straight = make_trainer(box_file, TINY, _config())
+    assert straight.run(time_limit=3600) is False and straight.step == 8
+    path, chunks = tmp_path / "chunks.pt", 0
+    trainer = make_trainer(box_file, TINY, _config())
+    while trainer.run(path, time_limit=0):  # every chunk ends after its first step
+        chunks += 1
+        assert load_checkpoint(path, with_training_state=True)[1]["step"] == trainer.step == chunks
+        trainer = make_trainer(box_file, TINY, _config(), resume_from=path)
+    assert chunks == 7 and trainer.step == 8  # the last chunk reached the end: not stopped early
+    for name, value in straight.simulator.state_dict().items():
+        torch.testing.assert_close(trainer.simulator.state_dict()[name], value, rtol=0, atol=0)
+
+
 def test_a_non_finite_loss_stops_training_and_keeps_the_last_checkpoint(box_file, tmp_path, monkeypatch):
     from fignetctl.core.model import training
 

@@ -68,6 +68,9 @@ def main() -> None:
     parser.add_argument("--learning-rate", type=float, nargs=2, default=(1e-3, 1e-4))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--frame-sampling", default="uniform", choices=["uniform", "motion"], help="train's --frame-sampling"
+    )
+    parser.add_argument(
         "--noise",
         type=float,
         nargs=2,
@@ -100,6 +103,8 @@ def main() -> None:
         args.seed,
         until_step=report_at[0] if report_at else None,
         noise=tuple(args.noise),
+        frame_sampling=args.frame_sampling,
+        gravity=data.gravity,
     )
     examples = one_step_examples(trainer.simulator, scenes)
     curve = []

@@ -64,6 +64,12 @@ class Settings:
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
+    frame_sampling: str = setting(
+        "uniform",
+        "Which frames the examples are: uniform, or motion (impact frames drawn more often, their "
+        "loss weighted down to keep the uniform expectation; docs/simulator.md).",
+        choices=("uniform", "motion"),
+    )
     loss: str = setting(
         "mse",
         "Loss on the normalized accelerations; huber weighs rare contact spikes less.",
@@ -183,6 +189,7 @@ def run(
         learning_rate_final=settings.learning_rate[1],
         loss=settings.loss,
         pushforward=settings.pushforward,
+        frame_sampling=settings.frame_sampling,
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,

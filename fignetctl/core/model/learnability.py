@@ -138,10 +138,13 @@ def overfit(
     seed=0,
     until_step=None,
     noise=(0.0, 0.0),
+    frame_sampling="uniform",
+    gravity=(0.0, 0.0, -10.0),
 ):
     """A Trainer that has fitted `scenes` for `steps`, or for `until_step` of a `steps`-long
     schedule (continue it with `trainer.run(until_step=...)`); without noise (the learnability
-    test) unless `noise` gives training's per-object jitter (translation m, rotation rad)."""
+    test) unless `noise` gives training's per-object jitter (translation m, rotation rad);
+    `gravity` (m/s²) is the scenes' (for `frame_sampling` 'motion')."""
     from fignetctl.core.model.simulator import LearnedSimulator
     from fignetctl.core.model.training import Trainer, TrainingSettings
 
@@ -157,10 +160,13 @@ def overfit(
         normalizer_accumulation_steps=min(200, steps),
         checkpoint_every=10**9,
         seed=seed,
+        frame_sampling=frame_sampling,
     )
     with torch.random.fork_rng():
         torch.manual_seed(seed)
-        simulator = LearnedSimulator(dataclasses.replace(simulator_config, dt=scenes[0].dt))
+        simulator = LearnedSimulator(
+            dataclasses.replace(simulator_config, dt=scenes[0].dt, gravity=tuple(gravity))
+        )
     trainer = Trainer(scenes, simulator, config)
     trainer.run(until_step=until_step)
     return trainer

@@ -73,6 +73,12 @@ class TrainingSettings:
     of the truth (the pushforward trick of Brandstetter et al. 2022: the network meets the
     errors its own rollouts make); built in the training process, ordinary examples until the
     normalizers freeze."""
+    frame_sampling: str = "uniform"
+    """Which frames the examples are: 'uniform' (a trajectory, then a frame t, each uniformly),
+    or 'motion': half of the draws so and half in proportion to how much the frame's motion
+    changes (`frame_motion`), each example's loss weighted by uniform/actual probability, so the
+    expected loss stays the uniform one while the rare impact frames that carry most of it are
+    drawn more often."""
     normalizer_accumulation_steps: int = 500
     """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
@@ -223,12 +229,69 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
 
 
+FRAME_SAMPLINGS = ("uniform", "motion")
+MOTION_SHARE = 0.5
+"""The share of 'motion' draws made in proportion to the frames' motion change (the rest are
+uniform, which keeps every loss weight at most 1 / (1 - MOTION_SHARE))."""
+
+
+MOTION_RESOLUTION = 1e-5
+"""Metres per frame² of `frame_motion` that are the float32 poses' rounding, not motion."""
+
+
+def frame_motion(scene, gravity) -> np.ndarray:
+    """(T − 2,) for frames t = 1 … T − 2: the RMS over the dynamic vertices of the change of
+    their motion from t − 1 → t to t → t + 1, beyond what gravity (m/s², (3,)) gives, less
+    MOTION_RESOLUTION: 0 in free flight, g dt² at rest, and large in impacts."""
+    geometry = scene.geometry
+    vertices = np.stack(
+        [
+            geometry.world_vertices(p, q, geometry.dynamic_vertices)
+            for p, q in zip(scene.positions, scene.quaternions)
+        ]
+    )
+    change = vertices[2:] - 2 * vertices[1:-1] + vertices[:-2] - np.asarray(gravity) * scene.dt**2
+    rms = np.sqrt(np.mean(np.sum(change**2, axis=-1), axis=-1))
+    return np.maximum(rms - MOTION_RESOLUTION, 0.0)
+
+
+class FrameSampler:
+    """Draws the (scene, frame t, loss weight) of each training example from a generator, as
+    `frame_sampling` says (TrainingSettings); 'uniform' makes the same draws, weight 1, as
+    training always did."""
+
+    def __init__(self, scenes, mode: str = "uniform", gravity=None):
+        if mode not in FRAME_SAMPLINGS:
+            raise FignetError(f"frame_sampling = {mode!r}: choose one of {', '.join(FRAME_SAMPLINGS)}")
+        self.mode, self.frames = mode, [s.positions.shape[0] - 2 for s in scenes]
+        if mode == "uniform":
+            return
+        if gravity is None:
+            raise FignetError("frame_sampling 'motion' needs the data's gravity (the simulator config's)")
+        uniform = np.concatenate([np.full(n, 1.0 / (len(scenes) * n)) for n in self.frames])
+        motion = np.concatenate([frame_motion(s, gravity) for s in scenes])
+        share = MOTION_SHARE if motion.sum() > 0 else 0.0
+        probability = (1 - share) * uniform + share * motion / max(motion.sum(), np.finfo(float).tiny)
+        self.cumulative = np.cumsum(probability) / probability.sum()
+        self.weights = uniform / probability
+        self.starts = np.cumsum([0, *self.frames])
+
+    def draw(self, rng) -> tuple[int, int, float]:
+        if self.mode == "uniform":
+            scene = int(rng.integers(len(self.frames)))
+            return scene, int(rng.integers(1, self.frames[scene] + 1)), 1.0  # t−1 and t+1 inside
+        index = min(int(np.searchsorted(self.cumulative, rng.random(), side="right")), len(self.weights) - 1)
+        scene = int(np.searchsorted(self.starts, index, side="right")) - 1
+        return scene, 1 + index - int(self.starts[scene]), float(self.weights[index])
+
+
 class TrainingBatches(torch.utils.data.Dataset):
     """Batch k of a run, built from (seed, rank, k) alone: picklable, so DataLoader workers
     build batches while the training process runs the network."""
 
     def __init__(self, scenes, simulator_config, config: TrainingSettings, rank: int = 0):
         self.scenes, self.simulator_config, self.config, self.rank = scenes, simulator_config, config, rank
+        self.sampler = FrameSampler(scenes, config.frame_sampling, simulator_config.gravity)
 
     def __len__(self) -> int:
         return self.config.steps
@@ -237,32 +300,45 @@ class TrainingBatches(torch.utils.data.Dataset):
         """`batch_of` the step's examples but the `pushforward` ones."""
         rng = np.random.default_rng([self.config.seed, self.rank, step])
         noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
-        examples = []
+        examples, weights = [], []
         for _ in range(self.config.batch_size - self.config.pushforward):  # Trainer adds the others
-            scene = self.scenes[rng.integers(len(self.scenes))]
-            frame = int(rng.integers(1, scene.positions.shape[0] - 1))  # t−1 and t+1 inside the trajectory
+            scene, frame, weight = self.sampler.draw(rng)
             examples.append(
-                training_example(self.simulator_config, scene, frame, noise_generator, self.config)
+                training_example(
+                    self.simulator_config, self.scenes[scene], frame, noise_generator, self.config
+                )
             )
-        return batch_of(examples)
+            weights.append(weight)
+        return batch_of(examples, None if self.config.frame_sampling == "uniform" else weights)
 
 
-def batch_of(examples) -> dict:
-    """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw targets}."""
-    return {
+def batch_of(examples, weights=None) -> dict:
+    """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw
+    targets, and with `weights` (one per example) "weights": each row's loss weight}."""
+    batch = {
         "graph": batch_graphs([e[0].graph for e in examples]),
         "rows": dynamic_rows([e[0] for e in examples]),
         "targets": torch.cat([e[1] for e in examples]),
     }
+    if weights is not None:
+        batch["weights"] = torch.cat(
+            [torch.full((len(e[1]),), float(w)) for e, w in zip(examples, weights, strict=True)]
+        )
+    return batch
 
 
 def joined(first: dict, second: dict) -> dict:
-    """Two `batch_of` batches as one."""
-    return {
+    """Two `batch_of` batches as one (rows without a weight weigh 1)."""
+    batch = {
         "graph": batch_graphs([first["graph"], second["graph"]]),
         "rows": torch.cat([first["rows"], second["rows"] + first["graph"].num_nodes]),
         "targets": torch.cat([first["targets"], second["targets"]]),
     }
+    if "weights" in first or "weights" in second:
+        batch["weights"] = torch.cat(
+            [b.get("weights", torch.ones(len(b["targets"]))) for b in (first, second)]
+        )
+    return batch
 
 
 def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
@@ -325,7 +401,9 @@ class Trainer:
             torch.device(self.device).type, dtype=torch.bfloat16, enabled=self.config.precision == "bf16"
         ):
             predictions = self.model(graph, accumulate)[batch["rows"].to(self.device)]
-        loss = regression_loss(predictions.float(), normalized_targets, self.config)
+        weights = batch.get("weights")
+        weights = None if weights is None else weights.to(self.device)
+        loss = regression_loss(predictions.float(), normalized_targets, self.config, weights)
         self._apply(loss)
         return float(loss.detach())
 
@@ -430,13 +508,19 @@ class Trainer:
         distributed.barrier()
 
 
-def regression_loss(predictions, targets, config: TrainingSettings) -> torch.Tensor:
-    """Mean loss over nodes and components of the normalized accelerations."""
+def regression_loss(predictions, targets, config: TrainingSettings, weights=None) -> torch.Tensor:
+    """Mean loss over nodes and components of the normalized accelerations, each node's
+    weighted by `weights` (N,) when given."""
     if config.loss == "huber":
-        return torch.nn.functional.huber_loss(predictions, targets, delta=config.huber_delta)
-    if config.loss == "mse":
-        return torch.mean((predictions - targets) ** 2)
-    raise FignetError(f"unknown loss {config.loss!r}: choose 'mse' or 'huber'")
+        reduction = "mean" if weights is None else "none"
+        loss = torch.nn.functional.huber_loss(
+            predictions, targets, delta=config.huber_delta, reduction=reduction
+        )
+    elif config.loss == "mse":
+        loss = (predictions - targets) ** 2
+    else:
+        raise FignetError(f"unknown loss {config.loss!r}: choose 'mse' or 'huber'")
+    return torch.mean(loss if weights is None else loss * weights[:, None])
 
 
 def dynamic_rows(scene_graphs) -> torch.Tensor:

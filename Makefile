@@ -46,10 +46,13 @@ bench: setup
 # Three stages: 10,000 steps with the target of the first runs (it undoes position noise too);
 # 1500 steps from those weights with the target that keeps the noise; 3500 steps from those at
 # twice the batch and a fifth of the learning rate.
-# `train`'s defaults keep static meshes whole and clamp face-face offsets to 1 m; the model file
+# MODEL_FLAGS name every setting in which these models differ from `train`'s defaults (two frames,
+# static receivers, quadric decimation, uniform frames, float32); `train`'s defaults keep static
+# meshes whole and clamp face-face offsets to 1 m; the model file
 # records the physical properties of its training data (rollout warns outside them).
 DATA    ?= data
-MODEL_FLAGS  := --size small --max-faces 256 --collision-radius 0.2 --loss huber
+MODEL_FLAGS  := --size small --max-faces 256 --collision-radius 0.2 --loss huber \
+                --state positions --static-receivers --decimation quadric --frame-sampling uniform --precision fp32
 TRAIN_FLAGS  := $(MODEL_FLAGS) --batch-size 4 --steps 10000 --checkpoint-every 250 --seed 0 --no-target-keeps-noise --learning-rate 1e-3 1e-4
 TUNE_FLAGS   := $(MODEL_FLAGS) --batch-size 4 --steps 1500 --checkpoint-every 100 --seed 1 --learning-rate 1e-3 1e-4
 POLISH_FLAGS := $(MODEL_FLAGS) --batch-size 8 --steps 3500 --checkpoint-every 100 --seed 3 --learning-rate 2e-4 2e-5
@@ -78,6 +81,7 @@ $(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt
 # nodes that do not aggregate, MSE, graphs built by a worker process, bf16 where the CPU has it.
 # One torch thread: the worker takes the other core. Resumable (re-run the target).
 VELOCITY_FLAGS := --size small --max-faces 256 --collision-radius 0.2 --state velocities --no-static-receivers --loss mse \
+                  --decimation quadric --frame-sampling uniform \
                   --batch-size 8 --steps 8000 --checkpoint-every 250 --seed 0 --workers 1 --precision auto --learning-rate 1e-3 1e-4
 
 $(DATA)/movi-b-train-4k.h5: | setup

@@ -123,52 +123,11 @@ class Settings:
     )
 
 
-def run(
-    dataset,
-    output,
-    settings: Settings = Settings(),
-    init_from=None,
-    log_csv=None,
-    rerun_path=None,
-    overwrite=False,
-    progress=None,
-    report=None,
-) -> dict:
-    """Train on the trajectory file `dataset`, writing the model file `output` atomically every
-    `checkpoint_every` steps (with the training data's hash); `resume` continues the run saved
-    in `output`, `init_from` starts a new one from a model file's weights. `log_csv` gets step,
-    loss and seconds at every checkpoint, `rerun_path` the loss curve; `settings.rerun_connect`
-    streams the curve to the viewer there as training goes (a warning through `report`, stderr
-    when None, if none listens). Data-parallel under torchrun: every rank trains, rank 0 writes and
-    streams. `settings.time_limit` stops the run early, checkpointed (`stopped_early` in the
-    summary). Returns the summary (output, steps, loss, rank, stopped_early)."""
-    from fignetctl.core.model.training import (
-        TrainingSettings,
-        make_trainer,
-        network_threads,
-        resolve_precision,
-        simulator_config_for,
-        write_loss_csv,
-    )
-    from fignetctl.core.rerun_log import live_recording, viewer_address
-    from fignetctl.core.viz import log_scalar_step
+def configs(settings: Settings, device: str = "cpu"):
+    """The (SimulatorConfig, TrainingSettings) a new run of these settings starts with (the
+    data's dt and gravity are added from the trajectory file)."""
+    from fignetctl.core.model.training import TrainingSettings, resolve_precision, simulator_config_for
 
-    check(settings)
-    if settings.rerun_connect is not None:
-        viewer_address(settings.rerun_connect)  # a bad address is refused before training, not after
-    rates = settings.learning_rate
-    if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
-        raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
-    if settings.pushforward >= settings.batch_size:
-        raise SettingError(
-            f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "
-            "the others are ordinary examples"
-        )
-    if settings.resume and overwrite:
-        raise SettingError("--resume continues --output, --overwrite replaces it: give one")
-    if settings.resume and init_from:
-        raise SettingError("--resume continues --output, --init-from starts a new run: give one")
-    output, device = Path(output), resolve_device(settings.device)
     simulator_config = simulator_config_for(
         settings.model,
         settings.size,
@@ -195,6 +154,49 @@ def run(
         seed=settings.seed,
         precision=resolve_precision(settings.precision, device),
     )
+    return simulator_config, training_config
+
+
+def run(
+    dataset,
+    output,
+    settings: Settings = Settings(),
+    init_from=None,
+    log_csv=None,
+    rerun_path=None,
+    overwrite=False,
+    progress=None,
+    report=None,
+) -> dict:
+    """Train on the trajectory file `dataset`, writing the model file `output` atomically every
+    `checkpoint_every` steps (with the training data's hash); `resume` continues the run saved
+    in `output`, `init_from` starts a new one from a model file's weights. `log_csv` gets step,
+    loss and seconds at every checkpoint, `rerun_path` the loss curve; `settings.rerun_connect`
+    streams the curve to the viewer there as training goes (a warning through `report`, stderr
+    when None, if none listens). Data-parallel under torchrun: every rank trains, rank 0 writes and
+    streams. `settings.time_limit` stops the run early, checkpointed (`stopped_early` in the
+    summary). Returns the summary (output, steps, loss, rank, stopped_early)."""
+    from fignetctl.core.model.training import make_trainer, network_threads, write_loss_csv
+    from fignetctl.core.rerun_log import live_recording, viewer_address
+    from fignetctl.core.viz import log_scalar_step
+
+    check(settings)
+    if settings.rerun_connect is not None:
+        viewer_address(settings.rerun_connect)  # a bad address is refused before training, not after
+    rates = settings.learning_rate
+    if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
+        raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
+    if settings.pushforward >= settings.batch_size:
+        raise SettingError(
+            f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "
+            "the others are ordinary examples"
+        )
+    if settings.resume and overwrite:
+        raise SettingError("--resume continues --output, --overwrite replaces it: give one")
+    if settings.resume and init_from:
+        raise SettingError("--resume continues --output, --init-from starts a new run: give one")
+    output, device = Path(output), resolve_device(settings.device)
+    simulator_config, training_config = configs(settings, device)
     resume_from = output if settings.resume and output.exists() else None
     trainer = make_trainer(
         dataset, simulator_config, training_config, device, resume_from, init_from, settings.workers

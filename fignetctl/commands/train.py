@@ -1,14 +1,11 @@
 """`fignetctl train`: train FIGNet* (or FIGNet) on a trajectory file, resumably."""
 
-import os
-
 import click
 
 from fignetctl.commands import options
 from fignetctl.stages import train as stage
 
 FILE = click.Path(dir_okay=False)
-TIME_LIMIT_EXIT = 75  # sysexits' EX_TEMPFAIL: not finished, run again
 
 
 @click.command("train")
@@ -53,14 +50,7 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
     rerun_path = options.optional_output(rerun_path, replace, "--rerun")
     settings = options.settings_from(stage.Settings, settings)
     summary = stage.run(dataset, path, settings, init_from, log_csv, rerun_path, overwrite, options.progress)
-    if summary["stopped_early"]:
-        if summary["rank"] == 0:
-            click.echo(
-                f"train: stopped at the time limit after step {summary['steps']} of {settings.steps}, "
-                f"checkpointed in {path}; run the same command with --resume to go on",
-                err=True,
-            )
-        # torchrun reports a process's other exit codes as a crash, with a traceback of its own
-        raise click.exceptions.Exit(0 if "TORCHELASTIC_RUN_ID" in os.environ else TIME_LIMIT_EXIT)
     if summary["rank"] == 0:
-        click.echo(str(path))
+        click.echo(summary["message"], err=True) if summary["stopped_early"] else click.echo(str(path))
+    if summary["exit_code"]:
+        raise click.exceptions.Exit(summary["exit_code"])

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from pathlib import Path
 
 from fignetctl.core.rerun_log import DEFAULT_VIEWER
 from fignetctl.errors import SettingError
 from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr
+
+
+TIME_LIMIT_EXIT = 75
+"""`train`'s exit code when --time-limit stopped it (sysexits' EX_TEMPFAIL: not finished, run again)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,7 +180,8 @@ def run(
     streams the curve to the viewer there as training goes (a warning through `report`, stderr
     when None, if none listens). Data-parallel under torchrun: every rank trains, rank 0 writes and
     streams. `settings.time_limit` stops the run early, checkpointed (`stopped_early` in the
-    summary). Returns the summary (output, steps, loss, rank, stopped_early)."""
+    summary, with the `message` to print and the `exit_code`). Returns the summary (output,
+    steps, loss, rank, stopped_early, message, exit_code)."""
     from fignetctl.core.model.training import make_trainer, network_threads, write_loss_csv
     from fignetctl.core.rerun_log import live_recording, viewer_address
     from fignetctl.core.viz import log_scalar_step
@@ -231,10 +237,19 @@ def run(
 
         log_scalars_to_rerun(rerun_path, "train", {"loss": [(h["step"], h["loss"]) for h in trainer.history]})
     history = trainer.history
+    message = None
+    if stopped:
+        message = (
+            f"train: stopped at the time limit after step {trainer.step} of {settings.steps}, checkpointed "
+            f"in {output}; run the same command with --resume to go on"
+        )
     return {
         "output": str(output),
         "steps": trainer.step,
         "loss": history[-1]["loss"] if history else None,
         "rank": trainer.rank,
         "stopped_early": stopped,
+        "message": message,
+        # torchrun reports a process's other exit codes as a crash, with a traceback of its own
+        "exit_code": TIME_LIMIT_EXIT if stopped and "TORCHELASTIC_RUN_ID" not in os.environ else 0,
     }

@@ -3,7 +3,8 @@
 Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and t+1 around
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
 regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss (with
-`pushforward`, that many of them take frame t from the simulator's own prediction instead).
+`pushforward`, that many of them take frame t from the simulator's own prediction instead; with
+`frame_sampling` 'motion', impact frames are drawn more often and weighted less).
 Adam with a learning rate decaying exponentially from `learning_rate_initial` to
 `learning_rate_final`.
 

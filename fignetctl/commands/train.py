@@ -32,7 +32,8 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
     the input history, MSE (or --loss huber) on normalized accelerations of the dynamic mesh nodes. The model
     file is written atomically every --checkpoint-every steps; --resume continues from it with the same
     weights an uninterrupted run would reach (--resume with no --output yet starts the run), and
-    --time-limit stops it, checkpointed, with exit code 75 (0 under torchrun). Runs data-parallel under torchrun (see docs/simulator.md).
+    --time-limit stops it, checkpointed, with exit code 75 (0 under torchrun). Runs data-parallel
+    under torchrun (see docs/simulator.md).
 
     \b
     Example:

@@ -271,8 +271,8 @@ class FrameSampler:
             raise FignetError("frame_sampling 'motion' needs the data's gravity (the simulator config's)")
         uniform = np.concatenate([np.full(n, 1.0 / (len(scenes) * n)) for n in self.frames])
         motion = np.concatenate([frame_motion(s, gravity) for s in scenes])
-        share = MOTION_SHARE if motion.sum() > 0 else 0.0
-        probability = (1 - share) * uniform + share * motion / max(motion.sum(), np.finfo(float).tiny)
+        total = motion.sum()
+        probability = uniform if total == 0 else (1 - MOTION_SHARE) * uniform + MOTION_SHARE * motion / total
         self.cumulative = np.cumsum(probability) / probability.sum()
         self.weights = uniform / probability
         self.starts = np.cumsum([0, *self.frames])

@@ -15,6 +15,10 @@ from tests.conftest import box_drop_file
 
 TORCHRUN = Path(sys.executable).with_name("torchrun")
 FIGNETCTL = Path(sys.executable).with_name("fignetctl")
+pytestmark = pytest.mark.skipif(
+    not (TORCHRUN.exists() and FIGNETCTL.exists()),
+    reason="torchrun or the fignetctl script is not installed beside this python",
+)
 
 
 def _torchrun_train(data, model, steps, *extra):
@@ -50,10 +54,6 @@ def _why(result) -> str:
     return "\n".join(said)[-3000:] + "\n...\n" + result.stderr[-1000:]
 
 
-@pytest.mark.skipif(
-    not (TORCHRUN.exists() and FIGNETCTL.exists()),
-    reason="torchrun or the fignetctl script is not installed beside this python",
-)
 def test_two_processes_train_and_resume_together(tmp_path):
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
     model = tmp_path / "model.pt"
@@ -70,10 +70,6 @@ def test_two_processes_train_and_resume_together(tmp_path):
     assert single.exit_code == 1 and "resume it with as many" in single.output
 
 
-@pytest.mark.skipif(
-    not (TORCHRUN.exists() and FIGNETCTL.exists()),
-    reason="torchrun or the fignetctl script is not installed beside this python",
-)
 def test_two_processes_stop_together_at_the_time_limit(tmp_path):
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
     model = tmp_path / "model.pt"

@@ -66,6 +66,11 @@ class Settings:
         "The nodes' mass feature: in kg, or its logarithm (a mass ratio becomes a difference).",
         choices=("kg", "log"),
     )
+    contact_velocity: bool = setting(
+        False,
+        "Face-face edges also carry their closest points' relative velocity and its approach rate "
+        "(docs/simulator.md).",
+    )
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
@@ -145,6 +150,7 @@ def configs(settings: Settings, device: str = "cpu"):
         settings.static_receivers,
         settings.mass_feature == "log",
         settings.decimation,
+        settings.contact_velocity,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

@@ -80,18 +80,30 @@ def test_train_learning_rate_option_sets_the_schedule(trained, tmp_path):
     assert result.exit_code == 2 and "--learning-rate" in result.output
 
 
-def test_train_mass_feature_option_reaches_the_model_file(trained, tmp_path):
+@pytest.mark.parametrize(
+    "option, field, refusal",
+    [
+        (["--mass-feature", "log"], "log_mass", "give the same --mass-feature (kg)"),
+        (
+            ["--contact-velocity"],
+            "contact_velocity",
+            "trained without --contact-velocity; give this run the same",
+        ),
+    ],
+)
+def test_train_feature_options_reach_the_model_file(trained, tmp_path, option, field, refusal):
+    """A new input feature is recorded, and a model without it cannot seed a run with it."""
     from fignetctl.core.model.checkpoint import load_checkpoint
 
     _, data, model = trained
-    assert load_checkpoint(model).config.graph.log_mass is False
-    out = tmp_path / "log-mass.pt"
-    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--mass-feature", "log"]
+    assert getattr(load_checkpoint(model).config.graph, field) is False
+    out = tmp_path / "featured.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", *option]
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 0, result.output
-    assert load_checkpoint(out).config.graph.log_mass is True
+    assert getattr(load_checkpoint(out).config.graph, field) is True
     result = CliRunner().invoke(cli, [*args[:4], "--init-from", str(model), "--overwrite", *args[4:]])
-    assert result.exit_code == 1 and "give the same --mass-feature (kg)" in result.output
+    assert result.exit_code == 1 and refusal in result.output
     assert "Traceback" not in result.output
 
 

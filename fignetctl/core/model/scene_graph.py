@@ -25,6 +25,9 @@ Edge sets (all features relative, so translating the whole scene changes nothing
   and receiver's unit normals (6). Each triangle's vertices are ordered canonically — by
   distance to its closest point, ties broken by coordinates — and the hyper-edge's senders and
   receivers list the vertex nodes in that order, so nothing depends on a face's vertex order.
+  With `GraphConfig.contact_velocity`, 4 more: the receiver's closest point's motion over the
+  step minus the sender's (3; each interpolated from its face's vertices, which is exact for a
+  rigid face) and its component along receiver − sender closest point (negative: closing).
 
 Geometry is computed in float64 and only relative quantities are cast to float32.
 
@@ -66,6 +69,7 @@ from fignetctl.core.triangles import closest_points_triangles
 NODE_FEATURE_SIZE = 12
 RELATIVE_EDGE_FEATURE_SIZE = 8
 FACE_FACE_FEATURE_SIZE = 34
+CONTACT_VELOCITY_FEATURE_SIZE = 4
 # Relative resolution of the keys that order a triangle's vertices canonically.
 ORDER_KEY_RESOLUTION = 1e-6
 
@@ -105,6 +109,11 @@ class GraphConfig:
     """True: the mass feature is ln(mass / kg) (0 for static objects, whose mass is 0), so a
     mass ratio is a difference, whatever the masses; False: mass in kg (model files before
     this field)."""
+    contact_velocity: bool = False
+    """True: face–face edges also carry the relative motion of their two closest points over
+    the step and its component along the line between them, the quantity an impact turns on,
+    which the network would otherwise have to compose from six vertex nodes. False: the
+    geometry alone (model files before this field)."""
 
 
 def graph_signature_for(config: GraphConfig) -> GraphSignature:
@@ -112,7 +121,7 @@ def graph_signature_for(config: GraphConfig) -> GraphSignature:
     sizes = {
         MESH_TO_OBJECT: RELATIVE_EDGE_FEATURE_SIZE,
         OBJECT_TO_MESH: RELATIVE_EDGE_FEATURE_SIZE,
-        FACE_FACE: FACE_FACE_FEATURE_SIZE,
+        FACE_FACE: FACE_FACE_FEATURE_SIZE + CONTACT_VELOCITY_FEATURE_SIZE * config.contact_velocity,
     }
     if config.surface_edges:
         sizes[NODE_NODE] = RELATIVE_EDGE_FEATURE_SIZE
@@ -361,6 +370,7 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
         vertex_nodes,
         config.max_vertex_offset,
         config.static_receivers,
+        node_motion(geometry, node_object, node_history) if config.contact_velocity else None,
     )
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
@@ -506,6 +516,13 @@ class VertexNodes:
         return self.sorted_nodes[np.searchsorted(self.sorted_vertices, vertices)]
 
 
+def node_motion(geometry, node_object, node_history):
+    """(N, 3) each node's motion over the step as the graph knows it: a dynamic node's velocity
+    (x_t − x_{t−1}, or its instantaneous velocity), a static node's given x_{t+1} − x_t."""
+    static = geometry.static[node_object][:, None]
+    return np.where(static, node_history[2] - node_history[1], node_history[1] - node_history[0])
+
+
 def node_feature_rows(geometry, node_vertex, node_object, node_history, log_mass=False):
     """node_history (3, N, 3) positions at t−1, t, t+1 -> (N, 12) float32 node features;
     `log_mass`: the mass column is ln(mass) (0 where the mass is 0: static objects)."""
@@ -581,10 +598,11 @@ def surface_edges_between(geometry, vertex_nodes):
 
 
 def face_face_edge_set(
-    geometry, node_now, pairs, vertex_nodes, max_vertex_offset=None, static_receivers=True
+    geometry, node_now, pairs, vertex_nodes, max_vertex_offset=None, static_receivers=True, motion=None
 ):
     """Collision hyper-edges for the face pairs (a broadphase.FacePairs), in both directions
-    (into dynamic faces only unless `static_receivers`), from the pairs' closest points."""
+    (into dynamic faces only unless `static_receivers`), from the pairs' closest points;
+    `motion` (N, 3) per node (node_motion): the contact-velocity columns too."""
     sender_faces = np.concatenate([pairs.face_i, pairs.face_j])
     receiver_faces = np.concatenate([pairs.face_j, pairs.face_i])
     sender_points = np.concatenate([pairs.point_i, pairs.point_j])
@@ -602,19 +620,24 @@ def face_face_edge_set(
         node_now[receiver_nodes],
         max_vertex_offset,
         (sender_points, receiver_points, distance),
+        None if motion is None else (motion[sender_nodes], motion[receiver_nodes]),
     )
     senders = np.take_along_axis(sender_nodes, sender_order, axis=1)
     receivers = np.take_along_axis(receiver_nodes, receiver_order, axis=1)
     return _edge_set(FACE_FACE, features, senders, receivers)
 
 
-def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=None, closest=None):
+def face_face_features(
+    sender_triangles, receiver_triangles, max_vertex_offset=None, closest=None, motion=None
+):
     """(E, 3, 3) x2 -> features (E, 34) float32, sender_order (E, 3), receiver_order (E, 3).
 
     The orders give each triangle's vertices canonically (see the module docstring); vertex
     offsets from the closest point are clamped to `max_vertex_offset` in length (None: not).
     closest : (sender point (E, 3), receiver point (E, 3), distance (E,)) when already known
     (the broad phase computes them), else None: computed here.
+    motion : None, or (sender (E, 3, 3), receiver (E, 3, 3)) each vertex's motion over the step,
+    in the triangles' vertex order: 4 contact-velocity columns are appended (E, 38).
     """
     sender_point, receiver_point, distance = (
         closest_points_triangles(sender_triangles, receiver_triangles) if closest is None else closest
@@ -637,8 +660,39 @@ def face_face_features(sender_triangles, receiver_triangles, max_vertex_offset=N
         unit_normals(sender_triangles),
         unit_normals(receiver_triangles),
     ]
+    if motion is not None:
+        closing = point_motion(receiver_triangles, receiver_point, motion[1]) - point_motion(
+            sender_triangles, sender_point, motion[0]
+        )
+        direction = np.divide(
+            receiver_point - sender_point,
+            distance[:, None],
+            out=np.zeros_like(closing),
+            where=distance[:, None] > 0,
+        )
+        columns += [closing, np.sum(closing * direction, axis=1, keepdims=True)]
     features = np.concatenate(columns, axis=1).astype(np.float32)
     return features, sender_order, receiver_order
+
+
+def point_motion(triangles, points, vertex_motion):
+    """(E, 3, 3) triangles, (E, 3) points on them, (E, 3, 3) their vertices' motion -> (E, 3)
+    each point's motion, interpolated barycentrically (exact for a rigid or affine motion); a
+    degenerate triangle gives its nearest vertex's."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    e1, e2, p = b - a, c - a, points - a
+    d11, d12, d22 = (np.sum(u * v, axis=1) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
+    dp1, dp2 = np.sum(p * e1, axis=1), np.sum(p * e2, axis=1)
+    denominator = d11 * d22 - d12 * d12
+    regular = denominator > 1e-12 * np.maximum(d11 * d22, 1e-300)
+    safe = np.where(regular, denominator, 1.0)
+    v = (d22 * dp1 - d12 * dp2) / safe
+    w = (d11 * dp2 - d12 * dp1) / safe
+    weights = np.clip(np.stack([1.0 - v - w, v, w], axis=1), 0.0, None)
+    weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
+    nearest = np.argmin(np.linalg.norm(triangles - points[:, None], axis=2), axis=1)
+    weights[~regular] = np.eye(3)[nearest[~regular]]
+    return np.einsum("ek,ekd->ed", weights, vertex_motion)
 
 
 def canonical_vertex_order(triangles, points):

@@ -592,7 +592,7 @@ def make_trainer(
 def _load_weights(simulator, path) -> None:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size) or it reads mass with the
-    other feature (kg or log)."""
+    other feature (kg or log), or its face-face edges differ in `contact_velocity`."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -600,6 +600,9 @@ def _load_weights(simulator, path) -> None:
             f"{path}: it reads mass as {feature}, so its weights and statistics fit that feature; "
             f"give the same `mass_feature` ({feature})"
         )
+    if source.config.graph.contact_velocity != simulator.config.graph.contact_velocity:
+        trained = "with" if source.config.graph.contact_velocity else "without"
+        raise FignetError(f"{path}: it was trained {trained} `contact_velocity`; give this run the same")
     try:
         simulator.load_state_dict(source.state_dict())
     except RuntimeError as error:
@@ -621,6 +624,7 @@ def simulator_config_for(
     static_receivers=True,
     log_mass=False,
     decimation="closest",
+    contact_velocity=False,
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
@@ -633,6 +637,7 @@ def simulator_config_for(
         speculative=speculative,
         static_receivers=static_receivers,
         log_mass=log_mass,
+        contact_velocity=contact_velocity,
     )
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)

@@ -13,6 +13,7 @@ from fignetctl.core.model.scene_graph import (
     scene_geometry,
 )
 from fignetctl.core.transforms import random_quaternions
+from fignetctl.core.triangles import closest_points_triangles
 
 FLOOR = (
     np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], float),
@@ -56,12 +57,14 @@ def test_face_face_features_from_the_broad_phases_points_equal_those_computed_pe
     directions; computed afresh per directed edge they give the same graph."""
     geometry, positions, quaternions = _two_objects_over_floor()
     positions[:, 2, 2] -= 0.9  # the sphere down onto the box: dynamic–dynamic pairs too
-    config = GraphConfig(collision_radius=0.2, static_receivers=static_receivers)
+    config = GraphConfig(collision_radius=0.2, static_receivers=static_receivers, contact_velocity=True)
     reused = build_scene_graph(geometry, positions, quaternions, config).graph.edge_sets[FACE_FACE]
     monkeypatch.setattr(
         scene_graph_module,
         "face_face_features",
-        lambda senders, receivers, max_offset, closest: face_face_features(senders, receivers, max_offset),
+        lambda senders, receivers, max_offset, closest, motion: face_face_features(
+            senders, receivers, max_offset, None, motion
+        ),
     )
     afresh = build_scene_graph(geometry, positions, quaternions, config).graph.edge_sets[FACE_FACE]
     assert reused.num_edges > 100
@@ -113,7 +116,7 @@ def test_fignet_star_graph_equals_fignet_graph_without_node_node_edges():
 
 def test_features_do_not_change_when_the_whole_scene_moves():
     geometry, positions, quaternions = _two_objects_over_floor()
-    config = GraphConfig(0.2, surface_edges=True)
+    config = GraphConfig(0.2, surface_edges=True, contact_velocity=True)
     here = build_scene_graph(geometry, positions, quaternions, config).graph
     there = build_scene_graph(geometry, positions + [1000.0, -2000.0, 30.0], quaternions, config).graph
     torch.testing.assert_close(here.node_features, there.node_features, atol=2e-6, rtol=0)
@@ -126,10 +129,14 @@ def test_face_face_features_do_not_depend_on_vertex_order():
     rng = np.random.default_rng(0)
     senders = rng.normal(size=(500, 3, 3))
     receivers = rng.normal(size=(500, 3, 3)) + [0.0, 0.0, 2.0]
-    features, sender_order, receiver_order = face_face_features(senders, receivers)
+    motion = (rng.normal(size=(500, 3, 3)), rng.normal(size=(500, 3, 3)))
+    features, sender_order, receiver_order = face_face_features(senders, receivers, motion=motion)
+    assert features.shape == (500, 38)
     for shift in (1, 2):  # cyclic permutations keep the orientation (and so the normal)
         rolled_features, rolled_sender, rolled_receiver = face_face_features(
-            np.roll(senders, shift, axis=1), np.roll(receivers, shift, axis=1)
+            np.roll(senders, shift, axis=1),
+            np.roll(receivers, shift, axis=1),
+            motion=tuple(np.roll(m, shift, axis=1) for m in motion),
         )
         np.testing.assert_allclose(rolled_features, features, atol=1e-5)
         np.testing.assert_array_equal((rolled_sender - shift) % 3, sender_order)
@@ -159,15 +166,17 @@ def test_face_face_vertex_offsets_are_clamped_keeping_their_direction():
 def test_face_face_features_of_degenerate_triangles_are_finite():
     point = np.zeros((1, 3, 3))
     segment = np.array([[[0, 0, 1.0], [1, 0, 1.0], [2, 0, 1.0]]])
-    features, _, _ = face_face_features(point, segment)
+    motion = (np.ones((1, 3, 3)), np.zeros((1, 3, 3)))
+    features, _, _ = face_face_features(point, segment, motion=motion)
     assert np.isfinite(features).all()
     assert features[0, 3] == pytest.approx(1.0)
+    np.testing.assert_array_equal(features[0, 34:], [-1.0, -1.0, -1.0, -1.0])  # closing at 1 per step
 
 
 def test_signature_matches_built_graphs():
     geometry, positions, quaternions = _two_objects_over_floor()
-    for surface_edges in (False, True):
-        config = GraphConfig(0.2, surface_edges)
+    for surface_edges, contact_velocity in ((False, False), (True, False), (False, True)):
+        config = GraphConfig(0.2, surface_edges, contact_velocity=contact_velocity)
         graph = build_scene_graph(geometry, positions, quaternions, config).graph
         signature = graph_signature_for(config)
         assert {n: e.features.shape[1] for n, e in graph.edge_sets.items()} == signature.edge_feature_sizes
@@ -190,13 +199,52 @@ def test_log_mass_feature_is_the_logarithm_of_each_dynamic_mass_and_zero_for_sta
     torch.testing.assert_close(kg.graph.node_features[:, others], log.graph.node_features[:, others])
 
 
-def test_a_model_config_without_log_mass_reads_as_mass_in_kg():
+@pytest.mark.parametrize("field", ["log_mass", "contact_velocity"])
+def test_a_model_config_without_a_feature_field_reads_as_without_the_feature(field):
+    """Model files older than the field: mass in kg, face-face edges without contact velocity."""
     import json
 
     from fignetctl.core.model.simulator import SimulatorConfig
 
-    config = SimulatorConfig(graph=GraphConfig(0.2, log_mass=True))
-    assert SimulatorConfig.from_json(config.to_json()).graph.log_mass
+    config = SimulatorConfig(graph=GraphConfig(0.2, **{field: True}))
+    assert getattr(SimulatorConfig.from_json(config.to_json()).graph, field)
     values = json.loads(config.to_json())
-    del values["graph"]["log_mass"]
-    assert SimulatorConfig.from_json(json.dumps(values)).graph.log_mass is False
+    del values["graph"][field]
+    assert getattr(SimulatorConfig.from_json(json.dumps(values)).graph, field) is False
+
+
+def test_contact_velocity_is_the_rigid_velocity_of_one_closest_point_relative_to_the_other():
+    """Against v + ω × (p − c) of each object at the closest points (found afresh per edge), and
+    a static floor's given motion; the geometry columns stay as they were without it."""
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 1, 2] = 0.45  # the box just above the floor
+    positions[:, 2, 2] -= 0.85  # the sphere down onto the box
+    positions[2, 0] = [0.01, -0.02, 0.0]  # the floor slides over the step
+    linear = np.array([[0, 0, 0], [0.01, -0.02, -0.03], [0.02, 0.01, -0.05]], float)
+    angular = np.array([[0, 0, 0], [0.1, -0.2, 0.05], [-0.3, 0.1, 0.2]], float)
+    config = GraphConfig(0.2, contact_velocity=True)
+    built = build_scene_graph(geometry, positions, quaternions, config, velocities=(linear, angular))
+    plain = build_scene_graph(
+        geometry, positions, quaternions, GraphConfig(0.2), velocities=(linear, angular)
+    ).graph.edge_sets[FACE_FACE]
+    edges = built.graph.edge_sets[FACE_FACE]
+    features = edges.features.numpy()
+    torch.testing.assert_close(edges.features[:, :34], plain.features)
+    now = built.node_positions[1]
+    senders, receivers = edges.senders.numpy(), edges.receivers.numpy()
+    sender_point, receiver_point, distance = closest_points_triangles(now[senders], now[receivers])
+
+    def motion_at(points, nodes):
+        objects = geometry.vertex_object[built.node_vertex[nodes[:, 0]]]
+        rigid = linear[objects] + np.cross(angular[objects], points - positions[1, objects])
+        return np.where(geometry.static[objects][:, None], positions[2, 0] - positions[1, 0], rigid)
+
+    closing = motion_at(receiver_point, receivers) - motion_at(sender_point, senders)
+    objects = geometry.vertex_object[built.node_vertex[np.concatenate([senders[:, 0], receivers[:, 0]])]]
+    assert {0, 1, 2} <= set(objects.tolist())  # floor–box and box–sphere pairs are both there
+    np.testing.assert_allclose(features[:, 34:37], closing, atol=2e-6)
+    apart = distance > 0  # touching or intersecting faces have no direction: 0
+    assert apart.sum() > 10
+    direction = (receiver_point[apart] - sender_point[apart]) / distance[apart, None]
+    np.testing.assert_allclose(features[apart, 37], np.sum(closing[apart] * direction, axis=1), atol=2e-6)
+    np.testing.assert_array_equal(features[~apart, 37], 0.0)

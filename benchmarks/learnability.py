@@ -71,6 +71,9 @@ def main() -> None:
         "--frame-sampling", default="uniform", choices=["uniform", "motion"], help="train's --frame-sampling"
     )
     parser.add_argument(
+        "--contact-velocity", action="store_true", help="train's --contact-velocity (face-face edges)"
+    )
+    parser.add_argument(
         "--noise",
         type=float,
         nargs=2,
@@ -87,7 +90,13 @@ def main() -> None:
     data = read_trajectories(args.data)
     data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
     config = simulator_config_for(
-        "fignet-star", args.size, 0.2, 256, state=args.state, static_receivers=False
+        "fignet-star",
+        args.size,
+        0.2,
+        256,
+        state=args.state,
+        static_receivers=False,
+        contact_velocity=args.contact_velocity,
     )
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})

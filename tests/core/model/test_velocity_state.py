@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from fignetctl.core.model.graph import FACE_FACE
 from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import rollout
 from fignetctl.core.model.scene_data import scene_from_trajectory
@@ -170,9 +171,11 @@ def test_the_graphs_velocity_feature_is_the_instantaneous_velocity():
     )  # the falling box: they differ by g·dt/2
 
 
-def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
+@pytest.mark.parametrize("contact_velocity", [False, True])
+def test_translating_the_scene_does_not_change_a_velocity_models_prediction(contact_velocity):
     torch.manual_seed(0)
-    simulator = LearnedSimulator(VELOCITY_TINY).eval()
+    graph = dataclasses.replace(VELOCITY_TINY.graph, contact_velocity=contact_velocity)
+    simulator = LearnedSimulator(dataclasses.replace(VELOCITY_TINY, graph=graph)).eval()
     scene = scene_from_trajectory(box_drop_file(frames=3, height=0.6), "00000", SimulatorConfig())
     velocities = (scene.velocities[1], scene.angular_velocities[1])
     simulator.inverse_postprocess(
@@ -181,16 +184,15 @@ def test_translating_the_scene_does_not_change_a_velocity_models_prediction():
     build_scene_graph(
         scene.geometry, scene.positions, scene.quaternions, simulator.config.graph
     )  # warm the caches alike
-    simulator(
-        build_scene_graph(
-            scene.geometry,
-            scene.positions,
-            scene.quaternions,
-            simulator.config.graph,
-            tuple(v * scene.dt for v in velocities),
-        ).graph,
-        accumulate=True,
-    )
+    built = build_scene_graph(
+        scene.geometry,
+        scene.positions,
+        scene.quaternions,
+        simulator.config.graph,
+        tuple(v * scene.dt for v in velocities),
+    ).graph
+    assert built.edge_sets[FACE_FACE].num_edges > 0  # the box near the floor: contact edges
+    simulator(built, accumulate=True)
     first = simulator.predict(scene.geometry, scene.positions, scene.quaternions, velocities=velocities)
     shift = np.array([1000.0, -2000.0, 0.0])
     moved = simulator.predict(

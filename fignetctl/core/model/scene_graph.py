@@ -630,7 +630,7 @@ def face_face_edge_set(
 def face_face_features(
     sender_triangles, receiver_triangles, max_vertex_offset=None, closest=None, motion=None
 ):
-    """(E, 3, 3) x2 -> features (E, 34) float32, sender_order (E, 3), receiver_order (E, 3).
+    """(E, 3, 3) x2 -> features (E, 34 or 38) float32, sender_order (E, 3), receiver_order (E, 3).
 
     The orders give each triangle's vertices canonically (see the module docstring); vertex
     offsets from the closest point are clamped to `max_vertex_offset` in length (None: not).

@@ -40,7 +40,7 @@ from typing import NamedTuple
 import h5py
 import torch
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.network import EncodeProcessDecode, concatenated_forward
 from fignetctl.core.model.training import (
     TrainingSettings,
@@ -286,8 +286,7 @@ def main() -> None:
             "args": vars(args),
             "results": rows,
         }
-        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
-            json.dump(result, f, indent=1)
+        write_json(args.output, result)
 
 
 if __name__ == "__main__":

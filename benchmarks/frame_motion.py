@@ -15,7 +15,7 @@ import json
 import h5py
 import numpy as np
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import FrameSampler, frame_motion, simulator_config_for
 from fignetctl.core.trajectory import read_trajectories
@@ -63,8 +63,7 @@ def main() -> None:
     }
     print(json.dumps(results, indent=1))
     if args.output:
-        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
-            json.dump(results, f, indent=1)
+        write_json(args.output, results)
         print(args.output)
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' corpus and helpers
 
-from fignetctl.core.atomic import atomic_path  # noqa: E402
+from fignetctl.core.atomic import write_json  # noqa: E402
 from tests.fuzz_corpus import OUTCOMES, base_files, corpus, run_case  # noqa: E402
 
 
@@ -54,8 +54,7 @@ def main() -> None:
     for result in report["not_clean"]:
         print(result, file=sys.stderr)
     if args.output:
-        with atomic_path(args.output) as tmp:
-            tmp.write_text(json.dumps(report, indent=1))
+        write_json(args.output, report)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ import time
 import numpy as np
 import torch
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.evaluation import errors_at
 from fignetctl.core.model.learnability import (
     fraction_unexplained,
@@ -158,8 +158,7 @@ def main() -> None:
         )
     )
     if args.output:
-        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
-            json.dump(result, f, indent=1)
+        write_json(args.output, result)
 
 
 if __name__ == "__main__":

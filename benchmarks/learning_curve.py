@@ -24,7 +24,7 @@ import os
 
 import torch
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import atomic_path, write_json
 from fignetctl.core.model.apply import evaluate_trajectories
 from fignetctl.core.model.checkpoint import load_checkpoint, read_checkpoint_payload
 from fignetctl.core.trajectory import read_trajectories
@@ -163,18 +163,16 @@ def main():
     points = held_out_points(
         stages, [stage[1] if len(stage) > 1 else None for stage in args.stage], args.test, args.n, known
     )
-    with atomic_path(args.out) as tmp, open(tmp, "w") as f:
-        json.dump(
-            {
-                "test": args.test,
-                "trajectories": args.n,
-                "stages": stages,
-                "held_out": points,
-                "loss": history[::10],
-            },
-            f,
-            indent=1,
-        )
+    write_json(
+        args.out,
+        {
+            "test": args.test,
+            "trajectories": args.n,
+            "stages": stages,
+            "held_out": points,
+            "loss": history[::10],
+        },
+    )
     plot(history, stages, points, args.plot, args.title)
     print(args.out, args.plot)
 

@@ -17,7 +17,7 @@ import json
 
 import numpy as np
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import DECIMATIONS, EVALUATION_STATIC_REACH, scene_from_trajectory
@@ -108,23 +108,21 @@ def main():
         "fraction_objects_drift_below_1cm": float(np.mean(drifts < 0.01)),
     }
     print(json.dumps(summary))
-    with atomic_path(args.out) as tmp, open(tmp, "w") as f:
-        json.dump(
-            {
-                "model": args.model,
-                "data": args.data,
-                "steps": args.steps,
-                "free_flight": args.free_flight,
-                "keep_out": args.keep_out,
-                "sleep": args.sleep,
-                "decimation": simulator.config.decimation,
-                "max_faces": simulator.config.max_faces_per_object,
-                "summary": summary,
-                "trajectories": rows,
-            },
-            f,
-            indent=1,
-        )
+    write_json(
+        args.out,
+        {
+            "model": args.model,
+            "data": args.data,
+            "steps": args.steps,
+            "free_flight": args.free_flight,
+            "keep_out": args.keep_out,
+            "sleep": args.sleep,
+            "decimation": simulator.config.decimation,
+            "max_faces": simulator.config.max_faces_per_object,
+            "summary": summary,
+            "trajectories": rows,
+        },
+    )
 
 
 if __name__ == "__main__":

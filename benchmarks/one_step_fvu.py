@@ -11,11 +11,10 @@ figures on both mean the model underfits; a much lower training figure means it 
 from __future__ import annotations
 
 import argparse
-import json
 
 import h5py
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.learnability import fraction_unexplained, one_step_examples
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
@@ -48,8 +47,7 @@ def main() -> None:
             f"velocity part {figures.get('velocity', float('nan')):.3f}) over {figures['vertices']} vertices"
         )
     if args.output:
-        with atomic_path(args.output) as tmp, open(tmp, "w") as f:
-            json.dump(results, f, indent=1)
+        write_json(args.output, results)
         print(args.output)
 
 

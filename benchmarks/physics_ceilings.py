@@ -15,12 +15,11 @@ manifolds carry over between frames (a reference: not a restart from the model's
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
 from fignetctl import __version__
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.ceilings import PAPER_STEPS, SECONDS_HORIZONS, evaluate_ceilings, horizon_steps
 from fignetctl.core.provenance import file_sha256
 from fignetctl.core.trajectory import read_trajectories
@@ -77,8 +76,7 @@ def main() -> None:
             f"{result['seconds']} s\n\n{markdown_table(result)}",
             flush=True,
         )
-    with atomic_path(args.output) as tmp, open(tmp, "w") as f:
-        json.dump(output, f, indent=1)
+    write_json(args.output, output)
     print(args.output)
 
 

@@ -19,6 +19,7 @@ import json
 
 import numpy as np
 
+from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
@@ -67,12 +68,9 @@ def main():
     k = np.concatenate(found)
     summary = {"responses": int(k.size), "k_p10_p50_p90": np.percentile(k, [10, 50, 90]).round(3).tolist()}
     print(json.dumps(summary))
-    with open(args.out, "w") as f:
-        json.dump(
-            {"model": args.model, "data": args.data, "speed_m_per_frame": SPEED, "summary": summary},
-            f,
-            indent=1,
-        )
+    write_json(
+        args.out, {"model": args.model, "data": args.data, "speed_m_per_frame": SPEED, "summary": summary}
+    )
 
 
 if __name__ == "__main__":

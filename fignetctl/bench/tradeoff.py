@@ -203,10 +203,9 @@ def write_result(result: dict, json_path, csv_path, png_path) -> None:
     """Write the json, the csv and the plot, each atomically."""
     import csv
 
-    from fignetctl.core.atomic import atomic_path
+    from fignetctl.core.atomic import atomic_path, write_json
 
-    with atomic_path(json_path) as tmp:
-        tmp.write_text(json.dumps(result, indent=1, default=_json_default))
+    write_json(json_path, result, default=_json_default)
     with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as f:
         csv.writer(f).writerows(csv_rows(result))
     with atomic_path(png_path) as tmp:

@@ -8,12 +8,20 @@ once no process of that id is running.
 import contextlib
 import fnmatch
 import glob
+import json
 import os
 import shutil
 import tempfile
 from pathlib import Path
 
 from fignetctl.errors import FignetError
+
+
+def write_json(path, document, **dumps_options) -> None:
+    """`document` as JSON at `path`, atomically; `dumps_options` go to json.dumps (indent=1 unless
+    given)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(document, **{"indent": 1, **dumps_options}))
 
 
 @contextlib.contextmanager

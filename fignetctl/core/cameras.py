@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fignetctl.core.atomic import atomic_path
+from fignetctl.core.atomic import write_json
 from fignetctl.core.containers import read_npz_document, require_regular_file, write_npz_document
 from fignetctl.core.media import read_image
 from fignetctl.core.pinhole import Camera
@@ -204,8 +204,7 @@ def export_transforms_json(path, cameras: Cameras, image_prefix: str = "") -> No
             }
         )
     document = {"camera_model": "OPENCV", "w": cameras.width, "h": cameras.height, "frames": frames}
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(document, indent=1))
+    write_json(path, document)
 
 
 def import_transforms_json(path, image_dir=None) -> Cameras:

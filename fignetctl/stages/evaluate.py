@@ -36,7 +36,6 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
     trajectory of the file `data` and compare (fignetctl.core.model.apply.evaluate_trajectories); the
     metrics, with the model's name and the inputs' hashes, are written to the json file
     `output` atomically when given, and returned."""
-    import json
 
     from fignetctl.core.model.apply import evaluate_trajectories, load_model
     from fignetctl.core.provenance import INPUTS_KEY, stamp
@@ -62,8 +61,7 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
     metrics.update(stamp(data=data))
     metrics[INPUTS_KEY]["model"] = simulator.source_sha256
     if output is not None:
-        from fignetctl.core.atomic import atomic_path
+        from fignetctl.core.atomic import write_json
 
-        with atomic_path(output) as tmp:
-            tmp.write_text(json.dumps(metrics, indent=2))
+        write_json(output, metrics, indent=2)
     return metrics

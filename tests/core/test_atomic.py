@@ -9,7 +9,13 @@ import time
 
 import pytest
 
-from fignetctl.core.atomic import StagedDirectory, atomic_directory, atomic_path, remove_stale_temporaries
+from fignetctl.core.atomic import (
+    StagedDirectory,
+    atomic_directory,
+    atomic_path,
+    remove_stale_temporaries,
+    write_json,
+)
 
 WRITER = """
 import sys, time
@@ -86,3 +92,18 @@ def test_a_failed_write_keeps_the_target_and_leaves_nothing(tmp_path):
         (staged.path / "x").write_text("bad")
         raise RuntimeError("failed half way")
     assert not (tmp_path / "dir").exists() and _leftovers(tmp_path, "dir") == []
+
+
+def test_write_json_writes_what_json_dumps_gives_and_keeps_the_target_when_it_cannot(tmp_path):
+    import json
+
+    target = tmp_path / "out.json"
+    document = {"a": [1, 2.5], "b": {"c": None}}
+    write_json(target, document)
+    assert target.read_text() == json.dumps(document, indent=1)
+    write_json(target, document, indent=2, sort_keys=True)
+    assert target.read_text() == json.dumps(document, indent=2, sort_keys=True)
+    with pytest.raises(TypeError):
+        write_json(target, {"not json": object()})
+    assert target.read_text() == json.dumps(document, indent=2, sort_keys=True)
+    assert _leftovers(tmp_path, "out") == []

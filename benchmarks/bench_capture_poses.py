@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core import synthetic_capture as capture_module
+from fignetctl.core.atomic import write_json
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.world_alignment import umeyama
 
@@ -280,7 +281,7 @@ def main():
         "rows": rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(document, indent=1) + "\n")
+    write_json(args.out, document)
     print(f"wrote {args.out}")
 
 

@@ -31,6 +31,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from mesh_vs_truth import chamfer, truth_to
 
+from fignetctl.core.atomic import write_json
+
 FACES = (100, 300, 1000, 3000, 0)
 
 
@@ -163,7 +165,7 @@ def main():
         )
         print(obj["name"], "mask IoU", results["objects"][-1]["mask_iou"], flush=True)
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(results, indent=1))
+    write_json(args.output, results)
     plot(results, args.plot)
 
 

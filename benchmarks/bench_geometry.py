@@ -11,7 +11,6 @@ exactly its pairs.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -22,6 +21,7 @@ import numpy as np
 import torch
 import trimesh
 
+from fignetctl.core.atomic import write_json
 from fignetctl.core.broadphase import brute_force_face_pairs, face_pairs_within_radius
 from fignetctl.core.shape_matching import (
     _fit_rigid_transform_torch_native,
@@ -203,7 +203,7 @@ def main():
     }
     print_report(results)
     arguments.out.parent.mkdir(parents=True, exist_ok=True)
-    arguments.out.write_text(json.dumps(results, indent=2) + "\n")
+    write_json(arguments.out, results, indent=2)
     print(f"wrote {arguments.out}")
 
 

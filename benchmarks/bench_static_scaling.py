@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fignetctl.core.atomic import write_json
 from fignetctl.core.broadphase import face_pairs_within_radius
 from fignetctl.core.model.checkpoint import bundled_model_path, load_checkpoint
 from fignetctl.core.model.rollout import rollout
@@ -341,7 +342,7 @@ def main():
             f"rollout on {name:>20}: bit-identical to 1k: {same['bit_identical']}, max |Δposition| {same['max_abs_position_difference_m']:.3g} m"
         )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.out, result)
     print(f"wrote {args.out}")
 
 

@@ -12,7 +12,6 @@ or did not come to rest.
 """
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -26,6 +25,7 @@ def main():
     parser.add_argument("--json", type=Path)
     parser.add_argument("--max-penetration", type=float, default=0.03, help="metres (default 0.03)")
     args = parser.parse_args()
+    from fignetctl.core.atomic import write_json
     from fignetctl.core.scene_building import drop_report
     from fignetctl.core.trajectory import read_trajectories
     from fignetctl.errors import FignetError
@@ -35,7 +35,7 @@ def main():
     except FignetError as error:
         sys.exit(f"error: {error}")
     if args.json:
-        args.json.write_text(json.dumps(report, indent=1))
+        write_json(args.json, report)
     clearance = report["min_clearance_m"]
     rest = (
         f"at rest after {report['rest_time_s']:.2f} s"

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from fignetctl.core import ceilings, movi
-from fignetctl.core.shapes import ShapeAsset
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from fignetctl.core.transforms import (
     quat_angle_deg,
@@ -20,6 +19,7 @@ from fignetctl.core.transforms import (
     random_quaternions,
 )
 from fignetctl.errors import FignetError
+from tests.core.stand_in_shapes import shape, stand_in_shapes
 
 GRAVITY = 10.0
 # Frame 2 from frame 1 stored as float32: positions (|x| < 8 m) carry up to half a float32 ulp
@@ -27,30 +27,9 @@ GRAVITY = 10.0
 FLOAT32_POSITION_TOLERANCE = 5e-7
 
 
-def shape(name, mesh, parts=None):
-    """A ShapeAsset of a trimesh mesh moved to its centre of mass; parts default to the mesh."""
-    centre = np.asarray(mesh.center_mass)
-    parts = [mesh.vertices] if parts is None else parts
-    return ShapeAsset(
-        name=name,
-        vertices=np.asarray(mesh.vertices - centre, np.float32),
-        faces=np.asarray(mesh.faces, np.int32),
-        convex_parts=tuple(np.asarray(part - centre, np.float32) for part in parts),
-        source="test",
-    )
-
-
 @pytest.fixture(scope="module")
 def shapes():
-    import trimesh
-
-    long = trimesh.creation.box((2.0, 1.0, 1.0))
-    foot = trimesh.creation.box((1.0, 1.0, 1.0), trimesh.transformations.translation_matrix([0.5, 1.0, 0.0]))
-    return [
-        shape("cube", trimesh.creation.box((2.0, 2.0, 2.0))),
-        shape("ball", trimesh.creation.icosphere(subdivisions=2, radius=1.0)),
-        shape("ell", trimesh.util.concatenate([long, foot]), parts=[long.vertices, foot.vertices]),
-    ]
+    return stand_in_shapes()
 
 
 def dataset(folder, shapes, seed, count, **overrides):

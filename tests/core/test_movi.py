@@ -21,41 +21,14 @@ from fignetctl.core.transforms import (
     transform_points,
 )
 from fignetctl.errors import FignetError
+from tests.core.stand_in_shapes import stand_in_shapes
 
 GRAVITY = 10.0
 
 
-def shape(name, mesh, parts=None):
-    """A ShapeAsset of a trimesh mesh moved to its centre of mass; parts default to the mesh."""
-    centre = np.asarray(mesh.center_mass)
-    parts = [mesh.vertices] if parts is None else parts
-    return ShapeAsset(
-        name=name,
-        vertices=np.asarray(mesh.vertices - centre, np.float32),
-        faces=np.asarray(mesh.faces, np.int32),
-        convex_parts=tuple(np.asarray(part - centre, np.float32) for part in parts),
-        source="test",
-    )
-
-
-def l_shape():
-    """Two 2 x 1 x 1 boxes touching along a face: an L with its two boxes as convex parts."""
-    import trimesh
-
-    long = trimesh.creation.box((2.0, 1.0, 1.0), trimesh.transformations.translation_matrix([0.0, 0.0, 0.0]))
-    foot = trimesh.creation.box((1.0, 1.0, 1.0), trimesh.transformations.translation_matrix([0.5, 1.0, 0.0]))
-    return shape("ell", trimesh.util.concatenate([long, foot]), parts=[long.vertices, foot.vertices])
-
-
 @pytest.fixture(scope="module")
 def shapes():
-    import trimesh
-
-    return [
-        shape("cube", trimesh.creation.box((2.0, 2.0, 2.0))),
-        shape("ball", trimesh.creation.icosphere(subdivisions=2, radius=1.0)),
-        l_shape(),
-    ]
+    return stand_in_shapes()
 
 
 def small_config(**overrides):
@@ -165,7 +138,7 @@ def test_shards_partition_the_global_indices():
 
 
 def test_trajectory_streams_depend_on_seed_index_and_attempt_only():
-    draw = lambda *key: movi.trajectory_rng(*key).random(4)  # noqa: E731
+    draw = lambda *key: movi.trajectory_rng(*key).random(4)
     np.testing.assert_array_equal(draw(1, 5, 0), draw(1, 5, 0))
     assert not np.array_equal(draw(1, 5, 0), draw(1, 6, 0))
     assert not np.array_equal(draw(1, 5, 0), draw(2, 5, 0))

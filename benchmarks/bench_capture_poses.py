@@ -280,7 +280,6 @@ def main():
         },
         "rows": rows,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, document)
     print(f"wrote {args.out}")
 

@@ -7,12 +7,12 @@ a shared machine even when the absolute numbers move. Writes json (--out).
 """
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
 
 from fignetctl.core import movi, shapes
+from fignetctl.core.atomic import write_json
 
 DEFAULT_OUT = Path(__file__).parent / "results" / "dataset.json"
 
@@ -56,8 +56,7 @@ def main():
             f"make-dataset {args.preset}: {row['trajectories_per_minute']:.0f} trajectories/minute with {row['jobs']} job(s)"
         )
     print(f"2 jobs / 1 job speed-up: {report['speedup_2_jobs']:.2f}x")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2))
+    write_json(args.out, report, indent=2)
 
 
 if __name__ == "__main__":

@@ -164,7 +164,6 @@ def main():
             }
         )
         print(obj["name"], "mask IoU", results["objects"][-1]["mask_iou"], flush=True)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.output, results)
     plot(results, args.plot)
 

@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fignetctl.core.atomic import write_json
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
@@ -353,8 +355,7 @@ def main():
     }
 
     def save():
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results, indent=1))
+        write_json(args.out, results)
 
     reuse_poses = args.reuse and args.stages != "poses"
     if args.stages == "poses" and args.out.exists():  # the NeRF figures stay those of the last full run

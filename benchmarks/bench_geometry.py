@@ -202,7 +202,6 @@ def main():
         "shape_matching": bench_shape_matching(rng, 1000, 300, arguments.repeats),
     }
     print_report(results)
-    arguments.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(arguments.out, results, indent=2)
     print(f"wrote {arguments.out}")
 

@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fignetctl.core.atomic import write_json
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -184,8 +186,7 @@ def main():
         "quick": args.quick,
         "results": results,
     }
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(document, indent=1))
+    write_json(args.out, document)
     plot_curves(results, Path(args.plot))
     print(args.out, args.plot, args.views_picture)
 

@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fignetctl.core.atomic import write_json
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -208,8 +210,7 @@ def main():
                 report["runs"][region]["meshes"] = found
         else:
             report = {"capture": str(capture), "nerfs": files, "meshes": meshes}
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(report, indent=1, default=str))
+        write_json(out, report, default=str)
         print(f"wrote {args.out}")
         return
     runs, paths = {}, {}
@@ -274,8 +275,7 @@ def main():
             f"{run.get('psnr_on_compared_pixels', float('nan')):12.2f} {1000 * run['voxel_size']:9.2f} "
             f"{1000 * run['background_voxel_size']:10.2f} {run['smallest_object_over_voxel']:12.1f}"
         )
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1, default=str))
+    write_json(args.out, result, default=str)
     print(f"wrote {args.out}")
 
 

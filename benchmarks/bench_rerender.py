@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from fignetctl.core import rerender
+from fignetctl.core.atomic import write_json
 from fignetctl.core.cameras import read_cameras
 from fignetctl.core.nerf import load_nerf
 from fignetctl.core.trajectory import Mesh, Trajectory, TrajectoryFile, write_trajectories
@@ -122,8 +123,7 @@ def main():
     }
     for key, value in result.items():
         print(f"{key:24s} {value:.4g}" if isinstance(value, float) else f"{key:24s} {value}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.out, result)
     if args.strip:
         write_strip(renderer, camera, motion, args.strip)
 

@@ -341,7 +341,6 @@ def main():
         print(
             f"rollout on {name:>20}: bit-identical to 1k: {same['bit_identical']}, max |Δposition| {same['max_abs_position_difference_m']:.3g} m"
         )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.out, result)
     print(f"wrote {args.out}")
 

@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_foreign_capture import umeyama
 
+from fignetctl.core.atomic import write_json
 from fignetctl.core.nerf.io import load_nerf
 from fignetctl.core.pinhole import camera_frame_points
 
@@ -84,8 +85,7 @@ def main():
             f"> 5 cm {100 * result['share_over_5cm']:.0f} % of {result['pixels']} pixels",
             flush=True,
         )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"box": box.tolist(), "results": results}, indent=1))
+    write_json(args.out, {"box": box.tolist(), "results": results})
 
 
 if __name__ == "__main__":

@@ -12,7 +12,12 @@ from fignetctl.core.model.scene_graph import (
     graph_signature_for,
     scene_geometry,
 )
-from fignetctl.core.transforms import random_quaternions
+from fignetctl.core.transforms import (
+    quat_from_rotation_vector,
+    quat_multiply,
+    quat_to_matrix,
+    random_quaternions,
+)
 from fignetctl.core.triangles import closest_points_triangles
 
 FLOOR = (
@@ -248,3 +253,36 @@ def test_contact_velocity_is_the_rigid_velocity_of_one_closest_point_relative_to
     direction = (receiver_point[apart] - sender_point[apart]) / distance[apart, None]
     np.testing.assert_allclose(features[apart, 37], np.sum(closing[apart] * direction, axis=1), atol=2e-6)
     np.testing.assert_array_equal(features[~apart, 37], 0.0)
+
+
+def test_contact_velocity_of_the_positions_state_is_the_closest_points_rigid_motion_from_t_minus_1():
+    """Without velocities (the two-frame state) the columns are each closest point's rigid
+    displacement t−1 -> t, found from the objects' two poses (the objects turn over the step),
+    one relative to the other; a static floor's given motion t -> t+1."""
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 1, 2] = 0.45
+    positions[:, 2, 2] -= 0.85
+    positions[2, 0] = [0.01, -0.02, 0.0]
+    turn = quat_from_rotation_vector(np.array([[0.0, 0.0, 0.0], [0.05, -0.1, 0.02], [-0.08, 0.03, 0.1]]))
+    quaternions[0] = quat_multiply(turn, quaternions[1])
+    built = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, contact_velocity=True))
+    edges = built.graph.edge_sets[FACE_FACE]
+    now = built.node_positions[1]
+    senders, receivers = edges.senders.numpy(), edges.receivers.numpy()
+    sender_point, receiver_point, _ = closest_points_triangles(now[senders], now[receivers])
+
+    def motion_at(points, nodes):
+        objects = geometry.vertex_object[built.node_vertex[nodes[:, 0]]]
+        body = np.einsum(
+            "eji,ej->ei", quat_to_matrix(quaternions[1, objects]), points - positions[1, objects]
+        )
+        before = (
+            np.einsum("eij,ej->ei", quat_to_matrix(quaternions[0, objects]), body) + positions[0, objects]
+        )
+        return np.where(geometry.static[objects][:, None], positions[2, 0] - positions[1, 0], points - before)
+
+    closing = motion_at(receiver_point, receivers) - motion_at(sender_point, senders)
+    objects = geometry.vertex_object[built.node_vertex[np.concatenate([senders[:, 0], receivers[:, 0]])]]
+    assert {0, 1, 2} <= set(objects.tolist())
+    assert np.abs(closing).max() > 0.02  # the turn moves the points by more than the tolerance
+    np.testing.assert_allclose(edges.features.numpy()[:, 34:37], closing, atol=2e-6)

@@ -40,6 +40,27 @@ def _two_objects_over_floor():
     return geometry, positions, quaternions
 
 
+def _box_on_floor_under_sphere():
+    """_two_objects_over_floor with the box just above the floor, the sphere down onto the box
+    and the floor sliding over the step t -> t+1: floor-box and box-sphere contacts."""
+    geometry, positions, quaternions = _two_objects_over_floor()
+    positions[:, 1, 2] = 0.45
+    positions[:, 2, 2] -= 0.85
+    positions[2, 0] = [0.01, -0.02, 0.0]
+    return geometry, positions, quaternions
+
+
+def _face_face_closest_points(built, geometry):
+    """The face-face edges' senders, receivers (E, 3) and their closest points and distance,
+    found afresh per edge; asserts that floor-box and box-sphere pairs are both there."""
+    edges = built.graph.edge_sets[FACE_FACE]
+    now = built.node_positions[1]
+    senders, receivers = edges.senders.numpy(), edges.receivers.numpy()
+    objects = geometry.vertex_object[built.node_vertex[np.concatenate([senders[:, 0], receivers[:, 0]])]]
+    assert {0, 1, 2} <= set(objects.tolist())
+    return (senders, receivers, *closest_points_triangles(now[senders], now[receivers]))
+
+
 def test_graph_has_every_node_and_collision_edges_only_near_contacts():
     geometry, positions, quaternions = _two_objects_over_floor()
     scene_graph = build_scene_graph(geometry, positions, quaternions, GraphConfig(collision_radius=0.2))
@@ -221,10 +242,7 @@ def test_a_model_config_without_a_feature_field_reads_as_without_the_feature(fie
 def test_contact_velocity_is_the_rigid_velocity_of_one_closest_point_relative_to_the_other():
     """Against v + ω × (p − c) of each object at the closest points (found afresh per edge), and
     a static floor's given motion; the geometry columns stay as they were without it."""
-    geometry, positions, quaternions = _two_objects_over_floor()
-    positions[:, 1, 2] = 0.45  # the box just above the floor
-    positions[:, 2, 2] -= 0.85  # the sphere down onto the box
-    positions[2, 0] = [0.01, -0.02, 0.0]  # the floor slides over the step
+    geometry, positions, quaternions = _box_on_floor_under_sphere()
     linear = np.array([[0, 0, 0], [0.01, -0.02, -0.03], [0.02, 0.01, -0.05]], float)
     angular = np.array([[0, 0, 0], [0.1, -0.2, 0.05], [-0.3, 0.1, 0.2]], float)
     config = GraphConfig(0.2, contact_velocity=True)
@@ -235,9 +253,7 @@ def test_contact_velocity_is_the_rigid_velocity_of_one_closest_point_relative_to
     edges = built.graph.edge_sets[FACE_FACE]
     features = edges.features.numpy()
     torch.testing.assert_close(edges.features[:, :34], plain.features)
-    now = built.node_positions[1]
-    senders, receivers = edges.senders.numpy(), edges.receivers.numpy()
-    sender_point, receiver_point, distance = closest_points_triangles(now[senders], now[receivers])
+    senders, receivers, sender_point, receiver_point, distance = _face_face_closest_points(built, geometry)
 
     def motion_at(points, nodes):
         objects = geometry.vertex_object[built.node_vertex[nodes[:, 0]]]
@@ -245,8 +261,6 @@ def test_contact_velocity_is_the_rigid_velocity_of_one_closest_point_relative_to
         return np.where(geometry.static[objects][:, None], positions[2, 0] - positions[1, 0], rigid)
 
     closing = motion_at(receiver_point, receivers) - motion_at(sender_point, senders)
-    objects = geometry.vertex_object[built.node_vertex[np.concatenate([senders[:, 0], receivers[:, 0]])]]
-    assert {0, 1, 2} <= set(objects.tolist())  # floor–box and box–sphere pairs are both there
     np.testing.assert_allclose(features[:, 34:37], closing, atol=2e-6)
     apart = distance > 0  # touching or intersecting faces have no direction: 0
     assert apart.sum() > 10
@@ -259,17 +273,12 @@ def test_contact_velocity_of_the_positions_state_is_the_closest_points_rigid_mot
     """Without velocities (the two-frame state) the columns are each closest point's rigid
     displacement t−1 -> t, found from the objects' two poses (the objects turn over the step),
     one relative to the other; a static floor's given motion t -> t+1."""
-    geometry, positions, quaternions = _two_objects_over_floor()
-    positions[:, 1, 2] = 0.45
-    positions[:, 2, 2] -= 0.85
-    positions[2, 0] = [0.01, -0.02, 0.0]
+    geometry, positions, quaternions = _box_on_floor_under_sphere()
     turn = quat_from_rotation_vector(np.array([[0.0, 0.0, 0.0], [0.05, -0.1, 0.02], [-0.08, 0.03, 0.1]]))
     quaternions[0] = quat_multiply(turn, quaternions[1])
     built = build_scene_graph(geometry, positions, quaternions, GraphConfig(0.2, contact_velocity=True))
     edges = built.graph.edge_sets[FACE_FACE]
-    now = built.node_positions[1]
-    senders, receivers = edges.senders.numpy(), edges.receivers.numpy()
-    sender_point, receiver_point, _ = closest_points_triangles(now[senders], now[receivers])
+    senders, receivers, sender_point, receiver_point, _ = _face_face_closest_points(built, geometry)
 
     def motion_at(points, nodes):
         objects = geometry.vertex_object[built.node_vertex[nodes[:, 0]]]
@@ -282,7 +291,5 @@ def test_contact_velocity_of_the_positions_state_is_the_closest_points_rigid_mot
         return np.where(geometry.static[objects][:, None], positions[2, 0] - positions[1, 0], points - before)
 
     closing = motion_at(receiver_point, receivers) - motion_at(sender_point, senders)
-    objects = geometry.vertex_object[built.node_vertex[np.concatenate([senders[:, 0], receivers[:, 0]])]]
-    assert {0, 1, 2} <= set(objects.tolist())
     assert np.abs(closing).max() > 0.02  # the turn moves the points by more than the tolerance
     np.testing.assert_allclose(edges.features.numpy()[:, 34:37], closing, atol=2e-6)

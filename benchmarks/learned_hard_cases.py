@@ -9,7 +9,6 @@ sets of properties, and writes them to json (docs/stability.md has the table).
 """
 
 import argparse
-import json
 import logging
 import sys
 import tempfile
@@ -21,6 +20,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
 import tests.stability.test_learned_rollouts as cases  # noqa: E402
+from fignetctl.core.atomic import write_json  # noqa: E402
 from fignetctl.core.model.apply import load_model, rollout_trajectory  # noqa: E402
 from fignetctl.core.trajectory import read_trajectories, write_trajectories  # noqa: E402
 
@@ -112,7 +112,7 @@ def main():
         print(
             f"{key:48s} {result['movi_b_materials'][key]!s:>22} {result['paper_fignet_star_table'][key]!s:>22}"
         )
-    Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+    write_json(args.out, result)
 
 
 if __name__ == "__main__":

@@ -121,7 +121,9 @@ def main():
     for entry in results:
         print(json.dumps(entry))
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1))
+        from fignetctl.core.atomic import write_json
+
+        write_json(args.json, results)
 
 
 if __name__ == "__main__":

@@ -159,6 +159,20 @@ def test_train_stops_at_its_time_limit_with_exit_75_and_resume_finishes(tmp_path
     assert refused.exit_code == 2 and "--time-limit" in refused.output
 
 
+def test_a_time_limited_run_from_init_from_says_to_resume_without_it(tmp_path):
+    data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    first, second = tmp_path / "first.pt", tmp_path / "second.pt"
+    base = ["train", str(data), "--size", "tiny", "--steps", "3"]
+    assert CliRunner().invoke(cli, [*base, "-o", str(first)]).exit_code == 0
+    args = [*base, "-o", str(second)]
+    stopped = CliRunner().invoke(cli, [*args, "--init-from", str(first), "--time-limit", "1e-9"])
+    assert stopped.exit_code == 75, stopped.output
+    assert "--resume in place of --init-from" in stopped.output
+    finished = CliRunner().invoke(cli, [*args, "--resume"])
+    assert finished.exit_code == 0, finished.output
+    assert torch.load(second, weights_only=True)["training_state"]["step"] == 3
+
+
 def test_rollout_keeps_scene_frames_and_appends_steps(trained, tmp_path):
     _, data, model = trained
     out = tmp_path / "rollout.h5"

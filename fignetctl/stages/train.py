@@ -245,11 +245,10 @@ def run(
     history = trainer.history
     message = None
     if stopped:
+        resume = "--resume in place of --init-from" if init_from else "--resume"
         message = (
             f"train: stopped at the time limit after step {trainer.step} of {settings.steps}, checkpointed "
-            f"in {output}; run the same command with --resume"
-            + (" in place of --init-from" if init_from else "")
-            + " to go on"
+            f"in {output}; run the same command with {resume} to go on"
         )
     return {
         "output": str(output),

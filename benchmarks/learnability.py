@@ -3,8 +3,10 @@ explain (the fraction of one-step target variance unexplained, FVU, on the very 
 trained on, without noise) and how far its rollout drifts from them.
 
 A model whose FVU stays high on two trajectories after thousands of visits per frame has a
-problem no amount of data fixes (its input, target, loss or size). The issue's bar: FVU <= 10 %
-and a rollout that tracks the training trajectory.
+problem no amount of data fixes (its input, target, loss or size). The bar
+(fignetctl.core.model.learnability.bar): FVU <= 10 %, and a rollout that tracks the training
+trajectories: at 10 and 50 steps within 0.1 m of PyBullet restarted every frame from the same
+state on them (measured here too). `--check` exits 1 when the bar is not met.
 
     python benchmarks/learnability.py data/movi-b-train.h5 --trajectories 2 --steps 3000 \
         -o benchmarks/results/learnability.json
@@ -15,14 +17,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 
 import numpy as np
 import torch
 
 from fignetctl.core.atomic import write_json
+from fignetctl.core.ceilings import evaluate_ceilings
 from fignetctl.core.model.evaluation import errors_at
 from fignetctl.core.model.learnability import (
+    bar,
     fraction_unexplained,
     one_step_examples,
     overfit,
@@ -34,6 +39,8 @@ from fignetctl.core.model.training import simulator_config_for
 from fignetctl.core.trajectory import read_trajectories
 
 HORIZONS = (1, 10, 50)
+TRACKED = (10, 50)
+"""The horizons at which the rollout must track its training trajectories."""
 
 
 def rollout_errors(simulator, scenes, horizons=HORIZONS) -> dict:
@@ -85,6 +92,7 @@ def main() -> None:
         "--report-at", default="", help="comma-separated steps at which FVU is also measured (one schedule)"
     )
     parser.add_argument("-o", "--output", default=None)
+    parser.add_argument("--check", action="store_true", help="exit 1 when the learnability bar is not met")
     args = parser.parse_args()
     torch.set_num_threads(1)
     data = read_trajectories(args.data)
@@ -133,13 +141,25 @@ def main() -> None:
         print(json.dumps(curve[-1]), flush=True)
     seconds = time.perf_counter() - started
     simulator = trainer.simulator.eval()
+    rollouts = rollout_errors(simulator, scenes)
+    ceiling_state = {"velocities": "velocity", "positions": "finite-difference"}[args.state]
+    ceiling = evaluate_ceilings(data, HORIZONS, num_trajectories=args.trajectories, states=(ceiling_state,))[
+        "states"
+    ][ceiling_state]
+    verdict = bar(
+        fvu["all"],
+        {int(key.split("_")[0]): row["translation_rmse_m"] for key, row in rollouts.items()},
+        {row["steps"]: row["translation_rmse_m"] for row in ceiling if row["steps"] in TRACKED},
+    )
     result = {
         "args": vars(args),
         "train_seconds": seconds,
         "fraction_unexplained": fvu,
         "rigid_fraction_unexplained": rigid,
         "curve": curve,
-        "rollout": rollout_errors(simulator, scenes),
+        "rollout": rollouts,
+        "ceiling": {"state": ceiling_state, "horizons": ceiling},
+        "bar": verdict,
         "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]])),
     }
     print(
@@ -150,6 +170,7 @@ def main() -> None:
                     "fraction_unexplained",
                     "rigid_fraction_unexplained",
                     "rollout",
+                    "bar",
                     "final_loss",
                     "train_seconds",
                 )
@@ -159,6 +180,16 @@ def main() -> None:
     )
     if args.output:
         write_json(args.output, result)
+    tracks = ", ".join(
+        f"{row['steps']} steps {row['model_m']:.3f} m (at most {row['at_most_m']:.3f})"
+        for row in verdict["tracks"]
+    )
+    print(
+        f"learnability bar {'met' if verdict['met'] else 'NOT met'}: FVU {verdict['fvu']['value']:.3f} "
+        f"(at most {verdict['fvu']['at_most']:.2f}); rollout of its training trajectories {tracks}"
+    )
+    if args.check and not verdict["met"]:
+        sys.exit(1)
 
 
 if __name__ == "__main__":

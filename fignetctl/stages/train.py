@@ -116,7 +116,8 @@ class Settings:
     time_limit: float | None = setting(
         None,
         "Stop after this many minutes, checkpointed, with exit code 75 (0 under torchrun, which reports "
-        "other codes as a crash); the same command with --resume goes on (chunks for a batch queue).",
+        "other codes as a crash); the same command with --resume (in place of any --init-from) goes on "
+        "(chunks for a batch queue).",
         low=0,
         low_open=True,
         metavar="MINUTES",

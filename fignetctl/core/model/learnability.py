@@ -8,7 +8,7 @@ fraction of the target variance left unexplained,
 over every dynamic vertex of every frame t of the given scenes (no training noise), with the
 targets and predictions in the model's normalized units, is 1 for a model that predicts the
 mean and 0 for a perfect one. benchmarks/learnability.py overfits two movi-b trajectories and
-reports it; the suite asserts it on seconds-long cases.
+reports it, with `bar`'s verdict; the suite asserts it on seconds-long cases.
 """
 
 from __future__ import annotations
@@ -19,6 +19,13 @@ import numpy as np
 import torch
 
 from fignetctl.core.model.graph import batch_graphs
+
+FVU_BAR = 0.10
+"""The issue's bar on the one-step fit of the training frames: FVU at most 10 %."""
+TRACKING_TOLERANCE_M = 0.10
+"""A rollout of training trajectories tracks them when, at each horizon, its translation RMSE is
+within this of PyBullet's restarted every frame from the same state on the same trajectories
+(what physics itself drifts there); 0.1 m is about a twentieth of a movi-b object's largest side."""
 
 
 def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
@@ -170,3 +177,33 @@ def overfit(
     trainer = Trainer(scenes, simulator, config)
     trainer.run(until_step=until_step)
     return trainer
+
+
+def bar(fvu: float, rollout_rmse: dict, ceiling_rmse: dict) -> dict:
+    """The learnability bar: FVU ≤ FVU_BAR and, at every horizon of `ceiling_rmse`,
+    a rollout translation RMSE ≤ the ceiling's + TRACKING_TOLERANCE_M.
+
+    rollout_rmse, ceiling_rmse : {steps: translation RMSE (m)} of the model's rollout of its
+        training trajectories and of PyBullet restarted from the same state on them
+    returns : {"fvu": {value, at_most, met}, "tracks": [{steps, model_m, ceiling_m, at_most_m,
+        met}], "met"}
+    """
+    if not ceiling_rmse or set(ceiling_rmse) - set(rollout_rmse):
+        raise ValueError(
+            f"rollout horizons {sorted(rollout_rmse)} must cover the ceiling's {sorted(ceiling_rmse)}"
+        )
+    fit = {"value": float(fvu), "at_most": FVU_BAR, "met": bool(fvu <= FVU_BAR)}
+    tracks = []
+    for steps in sorted(ceiling_rmse):
+        at_most = float(ceiling_rmse[steps]) + TRACKING_TOLERANCE_M
+        model = float(rollout_rmse[steps])
+        tracks.append(
+            {
+                "steps": int(steps),
+                "model_m": model,
+                "ceiling_m": float(ceiling_rmse[steps]),
+                "at_most_m": at_most,
+                "met": bool(model <= at_most),
+            }
+        )
+    return {"fvu": fit, "tracks": tracks, "met": fit["met"] and all(row["met"] for row in tracks)}

@@ -9,6 +9,9 @@ import torch
 
 from fignetctl.core import movi
 from fignetctl.core.model.learnability import (
+    FVU_BAR,
+    TRACKING_TOLERANCE_M,
+    bar,
     fraction_unexplained,
     one_step_examples,
     overfit,
@@ -99,3 +102,24 @@ def test_the_rigid_fraction_unexplained_is_zero_for_the_recorded_motion_and_not_
     drifting = rigid_fraction_unexplained(ReplaySimulator(scenes[0], drift=True), scenes)
     assert drifting["velocity"] > 0.5  # never changes its velocity: gravity and contacts unexplained
     assert drifting["all"] > 0.1
+
+
+def test_the_bar_needs_both_the_fit_and_a_rollout_within_physics_plus_the_tolerance_at_every_horizon():
+    ceiling = {10: 0.004, 50: 0.74}
+    tracking = {1: 0.004, 10: 0.004 + TRACKING_TOLERANCE_M, 50: 0.70}
+    met = bar(FVU_BAR, tracking, ceiling)
+    assert met["met"] and met["fvu"]["met"]
+    assert [row["steps"] for row in met["tracks"]] == [10, 50]
+    assert met["tracks"][0]["at_most_m"] == pytest.approx(0.004 + TRACKING_TOLERANCE_M)
+
+    # the measured 10,000-step run: the fit meets the bar, the rollout does not
+    drifting = bar(0.094, {1: 0.0036, 10: 0.23, 50: 2.49}, ceiling)
+    assert drifting["fvu"]["met"] and not drifting["met"]
+    assert [row["met"] for row in drifting["tracks"]] == [False, False]
+
+    assert not bar(FVU_BAR + 0.01, tracking, ceiling)["met"]  # tracks, but under-fits
+    assert not bar(0.05, {**tracking, 50: 0.74 + TRACKING_TOLERANCE_M + 0.01}, ceiling)["met"]
+    assert not bar(float("nan"), tracking, ceiling)["met"]
+    assert not bar(0.05, {**tracking, 10: float("nan")}, ceiling)["met"]
+    with pytest.raises(ValueError, match="cover"):
+        bar(0.05, {10: 0.1}, ceiling)

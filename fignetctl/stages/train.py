@@ -85,6 +85,13 @@ class Settings:
         "Loss on the normalized accelerations; huber weighs rare contact spikes less.",
         choices=("mse", "huber"),
     )
+    calm_weight: float = setting(
+        0.0,
+        "Extra loss weight of the vertices the recording has in free fall or at rest (their loss "
+        "weighs 1 + this): small errors there add up over a rollout (docs/simulator.md).",
+        low=0,
+        high=1e6,
+    )
     steps: int = setting(20000, "Total optimiser steps (a resumed run continues to this).", low=1, high=10**9)
     batch_size: int = setting(4, "Scenes per step.", low=1, high=4096)
     pushforward: int = setting(
@@ -161,6 +168,7 @@ def configs(settings: Settings, device: str = "cpu"):
         loss=settings.loss,
         pushforward=settings.pushforward,
         frame_sampling=settings.frame_sampling,
+        calm_weight=settings.calm_weight,
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,

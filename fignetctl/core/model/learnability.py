@@ -75,16 +75,11 @@ def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
 
 
 @torch.no_grad()
-def rigid_fraction_unexplained(simulator, scenes) -> dict:
-    """FVU of the rigid next step, what a rollout keeps, whatever the network decodes: each
-    noise-free frame t is stepped by `simulator.predict` (the network alone, shape matching and
-    the rigid velocity fit included), and the per-vertex corrections a_x = x_{t+1} − x_t − u_t
-    and a_u = u_{t+1} − u_t of the predicted and the recorded next pose and velocity are
-    compared, per component over every dynamic vertex.
-
-    {"all": mean over the components of their FVU, "position": over a_x's three, "velocity":
-    over a_u's three (velocity state only), "per_component": [...]}"""
-    predicted, recorded = [], []
+def rigid_corrections(simulator, scenes):
+    """For each noise-free frame t of the scenes, (scene, t, predicted, recorded): the (Vd, 3), or
+    (Vd, 6) for a velocity state, per-vertex corrections a_x = x_{t+1} − x_t − u_t (and
+    a_u = u_{t+1} − u_t) of the next pose (and velocity) that `simulator.predict` (the network
+    alone, shape matching and the rigid velocity fit included) steps to, and of the recorded one."""
     for scene in scenes:
         for t in range(1, scene.positions.shape[0] - 1):
             velocities = None
@@ -99,8 +94,20 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
             truth = (scene.positions[t + 1], scene.quaternions[t + 1], None, None)
             if velocities is not None:
                 truth = truth[:2] + (scene.velocities[t + 1], scene.angular_velocities[t + 1])
-            predicted.append(_vertex_corrections(scene, t, step))
-            recorded.append(_vertex_corrections(scene, t, truth))
+            yield scene, t, _vertex_corrections(scene, t, step), _vertex_corrections(scene, t, truth)
+
+
+def rigid_fraction_unexplained(simulator, scenes) -> dict:
+    """FVU of the rigid next step, what a rollout keeps, whatever the network decodes: the
+    `rigid_corrections` of the predicted and the recorded next pose (and velocity), compared
+    per component over every dynamic vertex.
+
+    {"all": mean over the components of their FVU, "position": over a_x's three, "velocity":
+    over a_u's three (velocity state only), "per_component": [...]}"""
+    predicted, recorded = [], []
+    for _, _, prediction, truth in rigid_corrections(simulator, scenes):
+        predicted.append(prediction)
+        recorded.append(truth)
     prediction, target = np.concatenate(predicted), np.concatenate(recorded)
     per_component = ((prediction - target) ** 2).sum(0) / ((target - target.mean(0)) ** 2).sum(0)
     result = {
@@ -110,6 +117,71 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
     }
     if len(per_component) == 6:
         result["velocity"] = float(per_component[3:].mean())
+    return result
+
+
+REGIMES = ("free fall", "at rest or steady", "impact", "other contact")
+IMPACT = 5.0
+"""An object's step is an impact when its motion changes beyond gravity's by more than this many
+|g| dt² per frame (at its centre, or from its spin at its farthest vertex)."""
+
+
+def motion_regimes(scene, t, gravity, velocity_state=True) -> np.ndarray:
+    """(Vd,) index into REGIMES of each dynamic vertex's object over the recorded step t → t + 1
+    (training.motion_change; "free fall" and "at rest or steady" are training.calm_vertices)."""
+    from fignetctl.core.model.training import CALM_TOLERANCE, motion_change
+
+    linear, angular = motion_change(scene, t, velocity_state)
+    fall = np.asarray(gravity, np.float64) * scene.dt**2
+    unit = np.linalg.norm(fall)
+    beyond = np.linalg.norm(linear - fall, axis=1)
+    spinning = angular >= CALM_TOLERANCE * unit
+    regime = np.full(len(linear), 3)
+    regime[(beyond < CALM_TOLERANCE * unit) & ~spinning] = 0
+    regime[(np.linalg.norm(linear, axis=1) < CALM_TOLERANCE * unit) & ~spinning] = 1
+    regime[np.maximum(beyond, angular) > IMPACT * unit] = 2
+    return regime[scene.geometry.vertex_object[scene.geometry.dynamic_vertices]]
+
+
+def regime_errors(simulator, scenes) -> dict:
+    """The `rigid_corrections` errors of a model split by the recorded `motion_regimes`, in
+    millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
+    "error_rms_mm": {"position": of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
+    the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls
+    down), "error_share": of the squared error over all regimes}}. Small errors on calm objects
+    are what a rollout adds up frame after frame; on impacts they are what the loss is made of."""
+    gravity = np.asarray(simulator.config.gravity, np.float64)
+    down = gravity / np.linalg.norm(gravity)
+    velocity_state = simulator.config.uses_velocities
+    labels, errors, targets = [], [], []
+    for scene, t, prediction, truth in rigid_corrections(simulator, scenes):
+        labels.append(motion_regimes(scene, t, gravity, velocity_state))
+        errors.append(prediction - truth)
+        targets.append(truth)
+    label, error, target = np.concatenate(labels), np.concatenate(errors), np.concatenate(targets)
+    total = float((error**2).sum())
+    parts = (
+        {"position": slice(0, 3), "velocity": slice(3, 6)} if velocity_state else {"position": slice(0, 3)}
+    )
+    last = parts["velocity" if velocity_state else "position"]
+
+    def rms(values, rows):
+        return float(np.sqrt((values[rows] ** 2).sum(1).mean()) * 1e3)
+
+    result = {}
+    for index, name in enumerate(REGIMES):
+        rows = label == index
+        if not rows.any():
+            result[name] = {"share": 0.0}
+            continue
+
+        result[name] = {
+            "share": float(rows.mean()),
+            "target_rms_mm": {part: rms(target[:, cut], rows) for part, cut in parts.items()},
+            "error_rms_mm": {part: rms(error[:, cut], rows) for part, cut in parts.items()},
+            "bias_mm": float((error[rows, last] @ -down).mean() * 1e3),
+            "error_share": float((error[rows] ** 2).sum() / total) if total else 0.0,
+        }
     return result
 
 

@@ -40,6 +40,7 @@ from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, ac
 from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
+from fignetctl.core.transforms import quat_conjugate, quat_multiply, quat_to_rotation_vector
 from fignetctl.errors import FignetError
 
 
@@ -80,6 +81,11 @@ class TrainingSettings:
     changes (`frame_motion`), each example's loss weighted by uniform/actual probability, so the
     expected loss stays the uniform one while the rare impact frames that carry most of it are
     drawn more often."""
+    calm_weight: float = 0.0
+    """Extra loss weight of the dynamic vertices that the recording moves in free fall or keeps
+    at rest from frame t to t + 1 (`calm_vertices`): their loss weighs 1 + calm_weight. Their
+    targets are small and simple, so under a loss that impacts dominate they are fitted
+    loosely, and a rollout adds those small errors up frame after frame."""
     normalizer_accumulation_steps: int = 500
     """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
@@ -230,6 +236,48 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
 
 
+CALM_TOLERANCE = 0.1
+"""How close (a fraction of |g| dt², per frame) an object's change of motion over a step must
+come to free fall's or to none for `calm_vertices`."""
+
+
+def motion_change(scene, frame, velocity_state=True):
+    """How the recording changes each object's motion from frame t = `frame` to t + 1: (O, 3)
+    the change of its centre's velocity and (O,) that of its angular velocity times its
+    farthest vertex's distance from the centre, both in metres per frame per frame. From the
+    recorded velocities at t and t + 1 for a `velocity_state` model (what its target spans),
+    else from the finite differences of the poses at t − 1, t, t + 1 (a two-frame model's)."""
+    geometry, dt = scene.geometry, scene.dt
+    if velocity_state:
+        linear = (scene.velocities[frame + 1] - scene.velocities[frame]) * dt
+        angular = (scene.angular_velocities[frame + 1] - scene.angular_velocities[frame]) * dt
+    else:
+        p, q = scene.positions, scene.quaternions
+        linear = p[frame + 1] - 2 * p[frame] + p[frame - 1]
+        turns = [quat_multiply(q[k + 1], quat_conjugate(q[k])) for k in (frame, frame - 1)]
+        angular = quat_to_rotation_vector(turns[0]) - quat_to_rotation_vector(turns[1])
+    reach = np.zeros(geometry.num_objects)
+    np.maximum.at(reach, geometry.vertex_object, np.linalg.norm(geometry.rest_vertices, axis=1))
+    return np.asarray(linear, np.float64), np.linalg.norm(angular, axis=1) * reach
+
+
+def calm_vertices(scene, frame, gravity, velocity_state=True) -> np.ndarray:
+    """(Vd,) bool of the scene's dynamic vertices: whether the recording moves their object from
+    frame t = `frame` to t + 1 in free fall or keeps it at rest (or sliding or rolling steadily):
+    its centre's velocity changes by gravity's g dt or not at all, and its angular velocity does
+    not change, each within CALM_TOLERANCE |g| dt² per frame (`motion_change`). `gravity` in
+    m/s²."""
+    linear, angular = motion_change(scene, frame, velocity_state)
+    fall = np.asarray(gravity, np.float64) * scene.dt**2
+    tolerance = CALM_TOLERANCE * np.linalg.norm(fall)
+    steady = (np.linalg.norm(linear - fall, axis=1) < tolerance) | (
+        np.linalg.norm(linear, axis=1) < tolerance
+    )
+    calm = steady & (angular < tolerance)
+    geometry = scene.geometry
+    return calm[geometry.vertex_object[geometry.dynamic_vertices]]
+
+
 FRAME_SAMPLINGS = ("uniform", "motion")
 MOTION_SHARE = 0.5
 """The share of 'motion' draws made in proportion to the frames' motion change (the rest are
@@ -309,13 +357,27 @@ class TrainingBatches(torch.utils.data.Dataset):
                     self.simulator_config, self.scenes[scene], frame, noise_generator, self.config
                 )
             )
-            weights.append(weight)
-        return batch_of(examples, None if self.config.frame_sampling == "uniform" else weights)
+            weights.append(
+                weight * row_weights(self.scenes[scene], frame, self.simulator_config, self.config)
+            )
+        weighted = self.config.frame_sampling != "uniform" or self.config.calm_weight
+        return batch_of(examples, weights if weighted else None)
+
+
+def row_weights(scene, frame, simulator_config, config: TrainingSettings):
+    """The loss weights of the dynamic vertices of the example at `frame`: 1, or (Vd,) with
+    1 + calm_weight on `calm_vertices`."""
+    if not config.calm_weight:
+        return 1.0
+    return 1.0 + config.calm_weight * calm_vertices(
+        scene, frame, simulator_config.gravity, simulator_config.uses_velocities
+    )
 
 
 def batch_of(examples, weights=None) -> dict:
     """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw
-    targets, and with `weights` (one per example) "weights": each row's loss weight}."""
+    targets, and with `weights` (per example, a number or one per dynamic vertex) "weights":
+    each row's loss weight}."""
     batch = {
         "graph": batch_graphs([e[0].graph for e in examples]),
         "rows": dynamic_rows([e[0] for e in examples]),
@@ -323,7 +385,10 @@ def batch_of(examples, weights=None) -> dict:
     }
     if weights is not None:
         batch["weights"] = torch.cat(
-            [torch.full((len(e[1]),), float(w)) for e, w in zip(examples, weights, strict=True)]
+            [
+                torch.as_tensor(np.ones(len(e[1])) * w, dtype=torch.float32)
+                for e, w in zip(examples, weights, strict=True)
+            ]
         )
     return batch
 
@@ -414,7 +479,7 @@ class Trainer:
         (the normalizers are still gathering) or a trajectory is under four frames long."""
         rng = np.random.default_rng([self.config.seed, self.rank, step, 1])
         noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
-        examples = []
+        examples, weights = [], []
         for _ in range(self.config.pushforward):
             scene = self.scenes[rng.integers(len(self.scenes))]
             frames = scene.positions.shape[0]
@@ -425,7 +490,8 @@ class Trainer:
                 )
             else:
                 examples.append(pushforward_example(self.simulator, scene, frame, self.config))
-        return batch_of(examples)
+            weights.append(row_weights(scene, frame, self.simulator.config, self.config))
+        return batch_of(examples, weights if self.config.calm_weight else None)
 
     def _apply(self, loss):
         for group in self.optimizer.param_groups:

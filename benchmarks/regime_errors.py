@@ -1,0 +1,62 @@
+"""Where a model's one-step errors lie, in millimetres per frame: each dynamic vertex of every
+noise-free frame of held-out trajectories is put in the regime its object is in over the
+recorded step (free fall; at rest or sliding or rolling steadily; an impact, where its motion
+changes by more than 5 g dt² beyond gravity; other contact) and the model's rigid next step
+(the network alone) is compared with the recording there. Impacts carry most of the squared
+error, so they are what an MSE loss fits; calm objects' small errors (and their bias, which
+pulls a resting object into the floor) are what a rollout adds up over many frames.
+
+    python benchmarks/regime_errors.py benchmarks/results/velocity-continued-12665-more-steps/model.pt \
+        data/movi-b-test.h5 -n 6 -o regimes.json
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import h5py
+
+from fignetctl.core.atomic import write_json
+from fignetctl.core.model.checkpoint import load_checkpoint
+from fignetctl.core.model.learnability import regime_errors
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.trajectory import read_trajectories
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("model", help="a model file from `fignetctl train`")
+    parser.add_argument("data", help="a trajectory file (held-out)")
+    parser.add_argument("-n", "--trajectories", type=int, default=6, help="its first n trajectories")
+    parser.add_argument("-o", "--output", default=None, help="json to write")
+    args = parser.parse_args()
+    simulator = load_checkpoint(args.model)
+    with h5py.File(args.data, "r") as f:
+        keys = sorted(f["trajectories"])[: args.trajectories]
+    scenes = scenes_from_data(read_trajectories(args.data, keys), simulator.config, TRAINING_STATIC_REACH)
+    regimes = regime_errors(simulator, scenes)
+    last = "velocity" if simulator.config.uses_velocities else "position"
+    print(f"{'regime':18s} {'share':>6s} {'target':>8s} {'error':>8s} {'bias':>7s} {'of sq. error':>12s}")
+    for name, figures in regimes.items():
+        if not figures["share"]:
+            print(f"{name:18s} {0:6.3f}")
+            continue
+        print(
+            f"{name:18s} {figures['share']:6.3f} {figures['target_rms_mm'][last]:8.2f} "
+            f"{figures['error_rms_mm'][last]:8.2f} {figures['bias_mm']:+7.2f} {figures['error_share']:12.3f}"
+        )
+    print(
+        f"(RMS of |a_{last[0].replace('v', 'u')}| and of its error, and the error's mean upwards, mm per frame)"
+    )
+    if args.output:
+        write_json(
+            args.output,
+            {"model": args.model, "data": args.data, "trajectories": args.trajectories, "regimes": regimes},
+        )
+        print(args.output)
+
+
+if __name__ == "__main__":
+    main()

@@ -120,27 +120,15 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
     return result
 
 
-REGIMES = ("free fall", "at rest or steady", "impact", "other contact")
-IMPACT = 5.0
-"""An object's step is an impact when its motion changes beyond gravity's by more than this many
-|g| dt² per frame (at its centre, or from its spin at its farthest vertex)."""
-
-
 def motion_regimes(scene, t, gravity, velocity_state=True) -> np.ndarray:
-    """(Vd,) index into REGIMES of each dynamic vertex's object over the recorded step t → t + 1
-    (training.motion_change; "free fall" and "at rest or steady" are training.calm_vertices)."""
-    from fignetctl.core.model.training import CALM_TOLERANCE, motion_change
+    """(Vd,) index into training.REGIMES of each dynamic vertex's object over the recorded step
+    t → t + 1 (training.object_regimes)."""
+    from fignetctl.core.model.training import object_regimes
 
-    linear, angular = motion_change(scene, t, velocity_state)
-    fall = np.asarray(gravity, np.float64) * scene.dt**2
-    unit = np.linalg.norm(fall)
-    beyond = np.linalg.norm(linear - fall, axis=1)
-    spinning = angular >= CALM_TOLERANCE * unit
-    regime = np.full(len(linear), 3)
-    regime[(beyond < CALM_TOLERANCE * unit) & ~spinning] = 0
-    regime[(np.linalg.norm(linear, axis=1) < CALM_TOLERANCE * unit) & ~spinning] = 1
-    regime[np.maximum(beyond, angular) > IMPACT * unit] = 2
-    return regime[scene.geometry.vertex_object[scene.geometry.dynamic_vertices]]
+    geometry = scene.geometry
+    return object_regimes(scene, t, gravity, velocity_state)[
+        geometry.vertex_object[geometry.dynamic_vertices]
+    ]
 
 
 def regime_errors(simulator, scenes) -> dict:
@@ -150,6 +138,8 @@ def regime_errors(simulator, scenes) -> dict:
     the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls
     down), "error_share": of the squared error over all regimes}}. Small errors on calm objects
     are what a rollout adds up frame after frame; on impacts they are what the loss is made of."""
+    from fignetctl.core.model.training import REGIMES
+
     gravity = np.asarray(simulator.config.gravity, np.float64)
     down = gravity / np.linalg.norm(gravity)
     velocity_state = simulator.config.uses_velocities

@@ -261,19 +261,36 @@ def motion_change(scene, frame, velocity_state=True):
     return np.asarray(linear, np.float64), np.linalg.norm(angular, axis=1) * reach
 
 
-def calm_vertices(scene, frame, gravity, velocity_state=True) -> np.ndarray:
-    """(Vd,) bool of the scene's dynamic vertices: whether the recording moves their object from
-    frame t = `frame` to t + 1 in free fall or keeps it at rest (or sliding or rolling steadily):
-    its centre's velocity changes by gravity's g dt or not at all, and its angular velocity does
-    not change, each within CALM_TOLERANCE |g| dt² per frame (`motion_change`). `gravity` in
-    m/s²."""
+REGIMES = ("free fall", "at rest or steady", "impact", "other contact")
+IMPACT = 5.0
+"""An object's step is an impact when its motion changes beyond gravity's by more than this many
+|g| dt² per frame (at its centre, or from its spin at its farthest vertex)."""
+
+
+def object_regimes(scene, frame, gravity, velocity_state=True) -> np.ndarray:
+    """(O,) index into REGIMES of what the recording does with each object from frame t =
+    `frame` to t + 1 (`motion_change`): free fall (its centre's velocity changes by gravity's
+    g dt) or at rest (or sliding or rolling steadily: it does not change), each within
+    CALM_TOLERANCE |g| dt² per frame and without a change of spin; an impact past IMPACT;
+    other contact otherwise. `gravity` in m/s²."""
     linear, angular = motion_change(scene, frame, velocity_state)
     fall = np.asarray(gravity, np.float64) * scene.dt**2
-    tolerance = CALM_TOLERANCE * np.linalg.norm(fall)
-    steady = (np.linalg.norm(linear - fall, axis=1) < tolerance) | (
-        np.linalg.norm(linear, axis=1) < tolerance
+    unit = np.linalg.norm(fall)
+    beyond = np.linalg.norm(linear - fall, axis=1)
+    spinning = angular >= CALM_TOLERANCE * unit
+    regime = np.full(len(linear), REGIMES.index("other contact"))
+    regime[(beyond < CALM_TOLERANCE * unit) & ~spinning] = REGIMES.index("free fall")
+    regime[(np.linalg.norm(linear, axis=1) < CALM_TOLERANCE * unit) & ~spinning] = REGIMES.index(
+        "at rest or steady"
     )
-    calm = steady & (angular < tolerance)
+    regime[np.maximum(beyond, angular) > IMPACT * unit] = REGIMES.index("impact")
+    return regime
+
+
+def calm_vertices(scene, frame, gravity, velocity_state=True) -> np.ndarray:
+    """(Vd,) bool of the scene's dynamic vertices: whether the recording moves their object from
+    frame t = `frame` to t + 1 in free fall or keeps it at rest (`object_regimes`)."""
+    calm = object_regimes(scene, frame, gravity, velocity_state) < REGIMES.index("impact")
     geometry = scene.geometry
     return calm[geometry.vertex_object[geometry.dynamic_vertices]]
 

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.model.learnability import REGIMES, motion_regimes, regime_errors
+from fignetctl.core.model.learnability import motion_regimes, regime_errors
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import (
     CALM_TOLERANCE,
+    REGIMES,
     TrainingBatches,
     TrainingSettings,
     calm_vertices,

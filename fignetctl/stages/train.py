@@ -11,7 +11,6 @@ from fignetctl.core.rerun_log import DEFAULT_VIEWER
 from fignetctl.errors import SettingError
 from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr
 
-
 TIME_LIMIT_EXIT = 75
 """`train`'s exit code when --time-limit stopped it (sysexits' EX_TEMPFAIL: not finished, run again)."""
 

@@ -30,8 +30,8 @@ from fignetctl.core.containers import (
     write_torch_document,
 )
 from fignetctl.core.model.trained_ranges import ranges_from_json
-from fignetctl.core.provenance import file_sha256
-from fignetctl.errors import FormatError
+from fignetctl.core.provenance import as_strings, file_sha256, stamp
+from fignetctl.errors import FormatError, SettingError
 
 FORMAT = "fignetctl.model"
 FORMAT_VERSION = 1
@@ -117,6 +117,50 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
         ranges = property_ranges(((t.properties, t.static) for t in data.trajectories.values()), sides)
         payload["trained_properties"] = ranges_to_json(ranges)
     payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
+    with atomic_path(destination) as tmp:
+        torch.save(payload, tmp)
+    return Path(destination)
+
+
+def average_checkpoints(sources, destination) -> Path:
+    """Average the weights of model files into one, without training state: a "model soup"
+    (Wortsman et al. 2022) of runs continued from one model with other seeds, which stay close
+    enough in weight space for their mean to be a model too. The normalizer statistics are sums
+    and counts, so their mean normalizes with the statistics pooled over the runs. The files
+    must share their settings and properties; the result records each one's provenance."""
+    if len(sources) < 2:
+        raise SettingError("give two or more model files to average")
+    payloads = [read_checkpoint_payload(source) for source in sources]
+    first = payloads[0]
+    for source, payload in zip(sources[1:], payloads[1:]):
+        for field in ("simulator_config", "trained_properties"):
+            if payload.get(field) != first.get(field):
+                raise FormatError(
+                    f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one dataset"
+                )
+    for source in sources:  # also checks the weights fit the settings and are finite
+        load_checkpoint(source)
+    weights = {}
+    for name, tensor in first["model"].items():
+        stacked = torch.stack([payload["model"][name] for payload in payloads])
+        mean = stacked.mean(0) if tensor.is_floating_point() else stacked.double().mean(0).round()
+        weights[name] = mean.to(tensor.dtype)
+    history = [payload.get("training_state") or payload.get("provenance") or {} for payload in payloads]
+    fields = {key: first[key] for key in ("simulator_config", "trained_properties") if key in first}
+    payload = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        **as_strings(stamp(**{f"model_{k}": source for k, source in enumerate(sources)})),
+        **fields,
+        "model": weights,
+        "provenance": {
+            "averaged_from": [
+                {key: run[key] for key in ("step", "training_config", "data_hash") if key in run}
+                for run in history
+            ]
+        },
+    }
+    payload[WEIGHTS_HASH_KEY] = weights_sha256(weights)
     with atomic_path(destination) as tmp:
         torch.save(payload, tmp)
     return Path(destination)

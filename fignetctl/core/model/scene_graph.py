@@ -172,6 +172,13 @@ class SceneGeometry:
         return [_read_only(rows) for rows in _rows_of_each(self.vertex_object, self.num_objects)]
 
     @functools.cached_property
+    def object_reach(self) -> np.ndarray:
+        """(O,) float64 the distance of each object's farthest vertex from its centre."""
+        reach = np.zeros(self.num_objects)
+        np.maximum.at(reach, self.vertex_object, np.linalg.norm(self.rest_vertices, axis=1))
+        return _read_only(reach)
+
+    @functools.cached_property
     def object_faces(self) -> list:
         """[(F_o,) int64 global face indices of object o, ascending] for each object."""
         return [_read_only(rows) for rows in _rows_of_each(self.face_object, self.num_objects)]

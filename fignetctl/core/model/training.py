@@ -256,9 +256,7 @@ def motion_change(scene, frame, velocity_state=True):
         linear = p[frame + 1] - 2 * p[frame] + p[frame - 1]
         turns = [quat_multiply(q[k + 1], quat_conjugate(q[k])) for k in (frame, frame - 1)]
         angular = quat_to_rotation_vector(turns[0]) - quat_to_rotation_vector(turns[1])
-    reach = np.zeros(geometry.num_objects)
-    np.maximum.at(reach, geometry.vertex_object, np.linalg.norm(geometry.rest_vertices, axis=1))
-    return np.asarray(linear, np.float64), np.linalg.norm(angular, axis=1) * reach
+    return np.asarray(linear, np.float64), np.linalg.norm(angular, axis=1) * geometry.object_reach
 
 
 REGIMES = ("free fall", "at rest or steady", "impact", "other contact")

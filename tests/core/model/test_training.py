@@ -151,6 +151,54 @@ def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):
     assert state is None and simulator.config == trainer.simulator.config
 
 
+def test_averaged_runs_hold_the_mean_weights_pooled_statistics_and_each_run(box_file, tmp_path):
+    from fignetctl.core.model.checkpoint import average_checkpoints, read_checkpoint_payload
+
+    runs = []
+    for seed, steps in ((1, 3), (2, 5)):
+        make_trainer(box_file, TINY, _config(steps=steps, seed=seed)).run(tmp_path / f"{seed}.pt")
+        runs.append(load_checkpoint(tmp_path / f"{seed}.pt").state_dict())
+    average_checkpoints([tmp_path / "1.pt", tmp_path / "2.pt"], tmp_path / "soup.pt")
+    soup = load_checkpoint(tmp_path / "soup.pt")
+    for name, value in soup.state_dict().items():
+        if value.is_floating_point():
+            torch.testing.assert_close(value, (runs[0][name] + runs[1][name]) / 2, rtol=1e-6, atol=1e-7)
+    pooled = (runs[0]["acceleration_normalizer.sum"] + runs[1]["acceleration_normalizer.sum"]) / (
+        runs[0]["acceleration_normalizer.count"] + runs[1]["acceleration_normalizer.count"]
+    )
+    torch.testing.assert_close(soup.acceleration_normalizer.sum / soup.acceleration_normalizer.count, pooled)
+    payload = read_checkpoint_payload(tmp_path / "soup.pt")
+    assert [run["step"] for run in payload["provenance"]["averaged_from"]] == [3, 5]
+    assert "training_state" not in payload and len(payload["inputs_sha256"]) > 2
+
+
+def test_a_model_averaged_with_itself_predicts_as_it_does(box_file, tmp_path):
+    from fignetctl.core.model.checkpoint import average_checkpoints
+
+    make_trainer(box_file, TINY, _config(steps=3)).run(tmp_path / "run.pt")
+    average_checkpoints([tmp_path / "run.pt"] * 3, tmp_path / "soup.pt")
+    scene = make_trainer(box_file, TINY, _config(steps=1)).scenes[0]
+    steps = [
+        load_checkpoint(path).step(scene.geometry, scene.positions[:3], scene.quaternions[:3])
+        for path in (tmp_path / "run.pt", tmp_path / "soup.pt")
+    ]
+    np.testing.assert_allclose(steps[1][0], steps[0][0], rtol=0, atol=1e-6)
+
+
+def test_averaging_refuses_one_file_and_models_of_other_settings(box_file, tmp_path):
+    from fignetctl.core.model.checkpoint import average_checkpoints
+    from fignetctl.errors import SettingError
+
+    make_trainer(box_file, TINY, _config(steps=2)).run(tmp_path / "a.pt")
+    other = dataclasses.replace(TINY, graph=GraphConfig(0.2, False))
+    make_trainer(box_file, other, _config(steps=2)).run(tmp_path / "b.pt")
+    with pytest.raises(SettingError, match="two or more"):
+        average_checkpoints([tmp_path / "a.pt"], tmp_path / "soup.pt")
+    with pytest.raises(FormatError, match="simulator_config differ"):
+        average_checkpoints([tmp_path / "a.pt", tmp_path / "b.pt"], tmp_path / "soup.pt")
+    assert not (tmp_path / "soup.pt").exists()
+
+
 def test_predicted_motion_does_not_change_when_the_whole_scene_moves(box_file):
     trainer = make_trainer(box_file, TINY, _config(steps=3))
     trainer.run()

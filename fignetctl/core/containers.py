@@ -149,9 +149,6 @@ def write_torch_document(
     """Write a torch file atomically: `format`, `format_version`, the provenance stamp (default:
     the version alone), `fields`, the `module`'s weights on the CPU and, when given, the
     `training_state` that makes it resumable. Returns the path."""
-    import torch
-
-    from fignetctl.core.atomic import atomic_path
     from fignetctl.core.provenance import as_strings, stamp
 
     payload = {
@@ -161,9 +158,19 @@ def write_torch_document(
         **fields,
         "model": {k: v.detach().cpu() for k, v in module.state_dict().items()},
     }
-    payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
     if training_state is not None:
         payload["training_state"] = training_state
+    return save_torch_payload(path, payload)
+
+
+def save_torch_payload(path, payload: dict) -> Path:
+    """Write a torch document's dictionary atomically, its `model` weights hashed under
+    WEIGHTS_HASH_KEY (what `read_torch_document` checks). Returns the path."""
+    import torch
+
+    from fignetctl.core.atomic import atomic_path
+
+    payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
     return Path(path)

@@ -20,13 +20,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fignetctl.core.atomic import atomic_path
 from fignetctl.core.containers import (
     LOADING_ERRORS,
-    WEIGHTS_HASH_KEY,
     read_torch_document,
+    save_torch_payload,
     weights_do_not_fit,
-    weights_sha256,
     write_torch_document,
 )
 from fignetctl.core.model.trained_ranges import ranges_from_json
@@ -45,6 +43,10 @@ BUNDLED = {
 def bundled_model_path(name=DEFAULT_BUNDLED) -> Path:
     """The path of a checkpoint shipped inside the package."""
     return Path(str(resources.files("fignetctl") / "assets" / "models" / BUNDLED[name]))
+
+
+RUN_RECORD = ("step", "training_config", "data_hash")
+"""What an exported or averaged model keeps of each run's training state, under `provenance`."""
 
 
 def save_checkpoint(path, simulator, training_state=None, extra=None, provenance=None) -> Path:
@@ -106,9 +108,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
     payload = read_checkpoint_payload(source)
     state = payload.pop("training_state", None)
     if state:  # an exported file keeps the provenance it has
-        payload["provenance"] = {
-            key: state[key] for key in ("step", "training_config", "data_hash", "history") if key in state
-        }
+        payload["provenance"] = {key: state[key] for key in (*RUN_RECORD, "history") if key in state}
     if trained_on is not None:
         if file_sha256(trained_on) != payload.get("provenance", {}).get("data_hash"):
             raise FormatError(f"{trained_on}: is not the file {source} was trained on (its hash differs)")
@@ -116,10 +116,7 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
         sides = np.concatenate([trajectory_largest_sides(data, key) for key in data.trajectories])
         ranges = property_ranges(((t.properties, t.static) for t in data.trajectories.values()), sides)
         payload["trained_properties"] = ranges_to_json(ranges)
-    payload[WEIGHTS_HASH_KEY] = weights_sha256(payload["model"])
-    with atomic_path(destination) as tmp:
-        torch.save(payload, tmp)
-    return Path(destination)
+    return save_torch_payload(destination, payload)
 
 
 def average_checkpoints(sources, destination) -> Path:
@@ -131,9 +128,9 @@ def average_checkpoints(sources, destination) -> Path:
     if len(sources) < 2:
         raise SettingError("give two or more model files to average")
     payloads = [read_checkpoint_payload(source) for source in sources]
-    first = payloads[0]
+    first, shared = payloads[0], ("simulator_config", "trained_properties")
     for source, payload in zip(sources[1:], payloads[1:]):
-        for field in ("simulator_config", "trained_properties"):
+        for field in shared:
             if payload.get(field) != first.get(field):
                 raise FormatError(
                     f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one dataset"
@@ -146,7 +143,7 @@ def average_checkpoints(sources, destination) -> Path:
         mean = stacked.mean(0) if tensor.is_floating_point() else stacked.double().mean(0).round()
         weights[name] = mean.to(tensor.dtype)
     history = [payload.get("training_state") or payload.get("provenance") or {} for payload in payloads]
-    fields = {key: first[key] for key in ("simulator_config", "trained_properties") if key in first}
+    fields = {key: first[key] for key in shared if key in first}
     payload = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -154,13 +151,7 @@ def average_checkpoints(sources, destination) -> Path:
         **fields,
         "model": weights,
         "provenance": {
-            "averaged_from": [
-                {key: run[key] for key in ("step", "training_config", "data_hash") if key in run}
-                for run in history
-            ]
+            "averaged_from": [{key: run[key] for key in RUN_RECORD if key in run} for run in history]
         },
     }
-    payload[WEIGHTS_HASH_KEY] = weights_sha256(weights)
-    with atomic_path(destination) as tmp:
-        torch.save(payload, tmp)
-    return Path(destination)
+    return save_torch_payload(destination, payload)

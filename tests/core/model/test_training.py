@@ -278,6 +278,9 @@ def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
     assert tuned.step == 0 and tuned.simulator.config.graph.speculative
     for name, value in first.simulator.state_dict().items():
         torch.testing.assert_close(tuned.simulator.state_dict()[name], value, rtol=0, atol=0)
+    stored_count = first.simulator.acceleration_normalizer.count.item()
+    tuned.train_step()  # its first steps add to the file's normalizer sums
+    assert tuned.simulator.acceleration_normalizer.count.item() > stored_count > 0
     other = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, True))
     with pytest.raises(FignetError, match="network differs"):
         make_trainer(box_file, other, _config(), init_from=tmp_path / "first.pt")

@@ -63,9 +63,23 @@ def read_checkpoint_payload(path) -> dict:
 
 def load_checkpoint(path, with_training_state=False, device="cpu"):
     """Model file -> LearnedSimulator (eval mode), and its training state when asked."""
+    payload = read_checkpoint_payload(path)
+    simulator = _simulator_from_payload(payload, path)
+    simulator.source_sha256 = file_sha256(path)  # outputs made with it record which model file it was
+    training_state = payload.get("training_state")
+    if with_training_state and training_state is not None and not isinstance(training_state, dict):
+        raise FormatError(f"{path}: 'training_state' is not a dictionary; the file cannot be resumed")
+    simulator.to(device).eval()
+    if with_training_state:
+        return simulator, training_state
+    return simulator
+
+
+def _simulator_from_payload(payload, path):
+    """A model file's checked dictionary -> LearnedSimulator, or a clear error when its weights
+    do not fit its settings or hold NaN or inf."""
     from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
 
-    payload = read_checkpoint_payload(path)
     try:
         config = SimulatorConfig.from_json(payload["simulator_config"])
         radius = float(config.graph.collision_radius)
@@ -77,13 +91,6 @@ def load_checkpoint(path, with_training_state=False, device="cpu"):
     except LOADING_ERRORS as error:
         raise weights_do_not_fit(path, error) from None
     _check_finite_state(simulator, path)
-    simulator.source_sha256 = file_sha256(path)  # outputs made with it record which model file it was
-    training_state = payload.get("training_state")
-    if with_training_state and training_state is not None and not isinstance(training_state, dict):
-        raise FormatError(f"{path}: 'training_state' is not a dictionary; the file cannot be resumed")
-    simulator.to(device).eval()
-    if with_training_state:
-        return simulator, training_state
     return simulator
 
 
@@ -135,8 +142,8 @@ def average_checkpoints(sources, destination) -> Path:
                 raise FormatError(
                     f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one dataset"
                 )
-    for source in sources:  # also checks the weights fit the settings and are finite
-        load_checkpoint(source)
+    for source, payload in zip(sources, payloads):  # the weights fit the settings and are finite
+        _simulator_from_payload(payload, source)
     weights = {}
     for name, tensor in first["model"].items():
         stacked = torch.stack([payload["model"][name] for payload in payloads])

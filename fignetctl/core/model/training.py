@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import json
 import os
 import time
@@ -441,8 +442,39 @@ def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
             num_workers=workers,
             prefetch_factor=4,
             multiprocessing_context=multiprocessing.get_context(method),
+            worker_init_fn=functools.partial(end_with_process, os.getpid()),
         )
     )
+
+
+def end_with_process(pid: int, worker_id: int = 0) -> None:
+    """DataLoader `worker_init_fn`: end this worker as soon as process `pid` (the trainer) has
+    ended. torch's own watchdog watches a worker's parent, which under forkserver is the fork
+    server, so a trainer killed by a signal or the out-of-memory killer left its workers behind,
+    each holding every scene of the training file."""
+    import select
+    import threading
+
+    def wait_for_exit():
+        try:
+            with contextlib.closing(os.pidfd_open(pid)) as handle:  # readable once it has ended
+                select.select([handle], [], [])
+        except (AttributeError, OSError):  # no pidfd here: look every second
+            while _process_exists(pid):
+                time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=wait_for_exit, name="end-with-trainer", daemon=True).start()
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 class Trainer:

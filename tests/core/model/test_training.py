@@ -315,3 +315,61 @@ def test_network_threads_leave_the_workers_their_cores(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "3")  # as torchrun sets it: kept
     with network_threads(1, "cpu"):
         assert torch.get_num_threads() == before
+
+
+def _descendants(pid):
+    """The pids of every process below `pid` (Linux /proc)."""
+    children = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parent = int(f.read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                continue
+            children.setdefault(parent, []).append(int(entry))
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads processes from /proc")
+def test_killing_the_trainer_ends_its_graph_workers(box_file, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    command = [sys.executable, "-c", "from fignetctl.cli import main; main()", "train", str(box_file)]
+    command += ["-o", str(tmp_path / "m.pt"), "--size", "tiny", "--steps", "1000000", "--workers", "1"]
+    trainer = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(below := _descendants(trainer.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)  # the worker is a grandchild: trainer -> fork server -> worker
+        assert trainer.poll() is None and len(below) >= 2, "the trainer did not start a graph worker"
+        time.sleep(1.0)  # the worker has run its init function by now
+        below = _descendants(trainer.pid)
+        trainer.send_signal(signal.SIGKILL)  # as the out-of-memory killer does: no clean-up runs
+        trainer.wait()
+        deadline = time.monotonic() + 30
+        while (alive := [p for p in below if os.path.exists(f"/proc/{p}") and _running(p)]) and (
+            time.monotonic() < deadline
+        ):
+            time.sleep(0.2)
+        assert alive == [], f"processes of the killed trainer still run: {alive}"
+    finally:
+        if trainer.poll() is None:
+            trainer.kill()
+
+
+def _running(pid):
+    """False for a zombie (ended, not yet reaped by its new parent)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False

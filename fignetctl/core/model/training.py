@@ -450,18 +450,19 @@ def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
 def end_with_process(pid: int, worker_id: int = 0) -> None:
     """DataLoader `worker_init_fn`: end this worker as soon as process `pid` (the trainer) has
     ended. torch's own watchdog watches a worker's parent, which under forkserver is the fork
-    server, so a trainer killed by a signal or the out-of-memory killer left its workers behind,
-    each holding every scene of the training file."""
+    server, so without this a trainer killed by a signal or the out-of-memory killer would leave
+    its workers behind, each holding every scene of the training file."""
     import select
     import threading
 
     def wait_for_exit():
         try:
-            with contextlib.closing(os.pidfd_open(pid)) as handle:  # readable once it has ended
-                select.select([handle], [], [])
-        except (AttributeError, OSError):  # no pidfd here: look every second
+            handle = os.pidfd_open(pid)  # readable once the process has ended
+        except (AttributeError, OSError):  # no pidfd here (or it has ended): look every second
             while _process_exists(pid):
                 time.sleep(1.0)
+        else:
+            select.select([handle], [], [])
         os._exit(1)
 
     threading.Thread(target=wait_for_exit, name="end-with-trainer", daemon=True).start()
@@ -472,8 +473,8 @@ def _process_exists(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
-        return True
+    except PermissionError:  # there, but another user's
+        pass
     return True
 
 

@@ -373,3 +373,30 @@ def _running(pid):
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+@pytest.mark.parametrize("pidfd", [True, False])
+def test_a_worker_ends_soon_after_the_process_it_watches(pidfd):
+    import subprocess
+    import sys
+
+    watched = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    code = "\n".join(
+        [
+            "import os, time",
+            "" if pidfd else "del os.pidfd_open  # as where there is none: look every second",
+            "from fignetctl.core.model.training import end_with_process",
+            f"end_with_process({watched.pid})",
+            "print('watching', flush=True)",
+            "time.sleep(60)",
+        ]
+    )
+    worker = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert worker.stdout.readline() == "watching\n"
+        watched.kill()
+        watched.wait()
+        assert worker.wait(timeout=30) == 1  # ended by the watcher (os._exit(1)), not after its sleep
+    finally:
+        watched.kill()
+        worker.kill()

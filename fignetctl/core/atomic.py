@@ -127,7 +127,7 @@ def remove_stale_temporaries(folder, name: str, suffix: str) -> list:
     start = f".{name}."
     for entry in Path(folder).glob(f".{glob.escape(name)}.*-*{glob.escape(suffix)}"):
         pid = entry.name[len(start) :].split("-", 1)[0]
-        if not pid.isdigit() or _running(int(pid)):
+        if not pid.isdigit() or process_running(int(pid)):
             continue
         if entry.is_dir() and not entry.is_symlink():
             shutil.rmtree(entry, ignore_errors=True)
@@ -137,7 +137,9 @@ def remove_stale_temporaries(folder, name: str, suffix: str) -> list:
     return removed
 
 
-def _running(pid: int) -> bool:
+def process_running(pid: int) -> bool:
+    """Whether a process with this pid exists (True for another user's, and for a number that
+    is no pid at all: callers leave alone what such a process may own)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

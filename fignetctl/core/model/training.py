@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fignetctl.core.atomic import process_running
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
@@ -459,23 +460,13 @@ def end_with_process(pid: int, worker_id: int = 0) -> None:
         try:
             handle = os.pidfd_open(pid)  # readable once the process has ended
         except (AttributeError, OSError):  # no pidfd here (or it has ended): look every second
-            while _process_exists(pid):
+            while process_running(pid):
                 time.sleep(1.0)
         else:
             select.select([handle], [], [])
         os._exit(1)
 
     threading.Thread(target=wait_for_exit, name="end-with-trainer", daemon=True).start()
-
-
-def _process_exists(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # there, but another user's
-        pass
-    return True
 
 
 class Trainer:

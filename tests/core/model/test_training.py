@@ -321,13 +321,8 @@ def _descendants(pid):
     """The pids of every process below `pid` (Linux /proc)."""
     children = {}
     for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    parent = int(f.read().rsplit(")", 1)[1].split()[1])
-            except OSError:
-                continue
-            children.setdefault(parent, []).append(int(entry))
+        if entry.isdigit() and (fields := _stat(int(entry))):
+            children.setdefault(int(fields[1]), []).append(int(entry))
     found, todo = [], [pid]
     while todo:
         for child in children.get(todo.pop(), []):
@@ -356,9 +351,7 @@ def test_killing_the_trainer_ends_its_graph_workers(box_file, tmp_path):
         trainer.send_signal(signal.SIGKILL)  # as the out-of-memory killer does: no clean-up runs
         trainer.wait()
         deadline = time.monotonic() + 30
-        while (alive := [p for p in below if os.path.exists(f"/proc/{p}") and _running(p)]) and (
-            time.monotonic() < deadline
-        ):
+        while (alive := [p for p in below if _running(p)]) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert alive == [], f"processes of the killed trainer still run: {alive}"
     finally:
@@ -366,13 +359,20 @@ def test_killing_the_trainer_ends_its_graph_workers(box_file, tmp_path):
             trainer.kill()
 
 
-def _running(pid):
-    """False for a zombie (ended, not yet reaped by its new parent)."""
+def _stat(pid):
+    """The fields of /proc/PID/stat after the command name (state, parent pid, ...), or None
+    once the process is gone."""
     try:
         with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+            return f.read().rsplit(")", 1)[1].split()
     except OSError:
-        return False
+        return None
+
+
+def _running(pid):
+    """False once it has ended, also as a zombie (not yet reaped by its new parent)."""
+    fields = _stat(pid)
+    return fields is not None and fields[0] != "Z"
 
 
 @pytest.mark.parametrize("pidfd", [True, False])

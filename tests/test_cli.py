@@ -192,3 +192,17 @@ def test_no_library_message_names_a_command_line_flag():
                 if {"argparse", "click"} & {name.split(".")[0] for name in names}:
                     found.append(f"{path.name}:{node.lineno}: imports argparse or click")
     assert not found, found
+
+
+@pytest.mark.parametrize("given", [None, "7"])
+def test_the_command_bounds_onednn_primitive_cache_unless_told(monkeypatch, given):
+    from fignetctl.cli import ONEDNN_PRIMITIVE_CACHE, main
+
+    if given is None:
+        monkeypatch.delenv("ONEDNN_PRIMITIVE_CACHE_CAPACITY", raising=False)
+    else:
+        monkeypatch.setenv("ONEDNN_PRIMITIVE_CACHE_CAPACITY", given)
+    monkeypatch.setattr(sys, "argv", ["fignetctl", "--version"])
+    with pytest.raises(SystemExit):
+        main()
+    assert os.environ["ONEDNN_PRIMITIVE_CACHE_CAPACITY"] == (given or ONEDNN_PRIMITIVE_CACHE)

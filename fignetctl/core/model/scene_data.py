@@ -18,6 +18,8 @@ floor, at the cost of a few thousand faces instead of hundreds of thousands.
 
 from __future__ import annotations
 
+import collections
+import collections.abc
 import dataclasses
 
 import numpy as np
@@ -231,6 +233,53 @@ def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
         used, new_faces = np.unique(faces[keep], return_inverse=True)
         cropped[o] = (np.asarray(vertices)[used], new_faces.reshape(-1, 3))
     return cropped
+
+
+class SceneStore(collections.abc.Sequence):
+    """The trajectories of a read file as Scenes, each made when first asked for and at most
+    `capacity` kept (the least recently used go first; None keeps all).
+
+    A made Scene holds float64 poses and the concatenated geometry of its objects, about six
+    times the file's float32 arrays, and keeps more once a graph is built from it. Training
+    draws scenes at random, so the store keeps the file's arrays for all and a bounded number
+    of Scenes. It pickles without its Scenes: a graph-building worker gets the file's arrays and
+    makes its own.
+    """
+
+    def __init__(self, data: TrajectoryFile, config, static_reach=None, capacity: int | None = None):
+        if capacity is not None and capacity < 1:
+            raise ValueError(f"capacity must be at least 1 or None, not {capacity}")
+        self.data, self.config, self.static_reach, self.capacity = data, config, static_reach, capacity
+        self.keys = list(data.trajectories)
+        self._meshes = {}
+        self._scenes = collections.OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def __getitem__(self, index) -> Scene:
+        index = range(len(self.keys))[index]  # an IndexError out of range, as a list's
+        scene = self._scenes.get(index)
+        if scene is not None:
+            self._scenes.move_to_end(index)
+            return scene
+        scene = scene_from_trajectory(
+            self.data, self.keys[index], self.config, self._meshes, self.static_reach
+        )
+        self._scenes[index] = scene
+        if self.capacity is not None and len(self._scenes) > self.capacity:
+            self._scenes.popitem(last=False)
+        return scene
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_scenes": collections.OrderedDict()}
+
+
+def frame_counts(scenes) -> list[int]:
+    """The number of frames of each scene of a list or a SceneStore (whose Scenes it does not make)."""
+    if isinstance(scenes, SceneStore):
+        return [scenes.data.trajectories[key].num_frames for key in scenes.keys]
+    return [scene.positions.shape[0] for scene in scenes]
 
 
 def scenes_from_file(path, config, static_reach=None) -> list[Scene]:

@@ -36,7 +36,7 @@ from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
-from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
 from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
@@ -329,7 +329,7 @@ class FrameSampler:
     def __init__(self, scenes, mode: str = "uniform", gravity=None):
         if mode not in FRAME_SAMPLINGS:
             raise FignetError(f"frame_sampling = {mode!r}: choose one of {', '.join(FRAME_SAMPLINGS)}")
-        self.mode, self.frames = mode, [s.positions.shape[0] - 2 for s in scenes]
+        self.mode, self.frames = mode, [n - 2 for n in frame_counts(scenes)]
         if mode == "uniform":
             return
         if gravity is None:
@@ -482,10 +482,11 @@ class Trainer:
                 "the others are ordinary examples"
             )
         self.rank, device = distributed.join_process_group(device)
-        simulator.trained_properties = property_ranges(
-            ((s.geometry.properties, s.geometry.static) for s in scenes),
-            np.concatenate([largest_sides(s.geometry) for s in scenes]) if scenes else None,
-        )
+        properties, sides = [], []
+        for scene in scenes:  # once: a SceneStore makes each Scene again after dropping it
+            properties.append((scene.geometry.properties, scene.geometry.static))
+            sides.append(largest_sides(scene.geometry))
+        simulator.trained_properties = property_ranges(properties, np.concatenate(sides) if sides else None)
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash, self.workers = device, data_hash, workers
@@ -652,10 +653,18 @@ def check_trainable(data, where) -> None:
 
 
 def make_trainer(
-    dataset_path, simulator_config, training_config, device="cpu", resume_from=None, init_from=None, workers=0
+    dataset_path,
+    simulator_config,
+    training_config,
+    device="cpu",
+    resume_from=None,
+    init_from=None,
+    workers=0,
+    scene_cache=None,
 ):
     """A Trainer for a dataset; resumed from a checkpoint's model and training state if given,
-    or a new run that starts from the weights and normalizer statistics of `init_from`."""
+    or a new run that starts from the weights and normalizer statistics of `init_from`. Each
+    process keeps at most `scene_cache` of its Scenes made (None: all; `SceneStore`; `train`: 4096)."""
     dataset_path = Path(dataset_path)
     data = read_trajectories(dataset_path)  # a clear error for a missing or damaged file, before hashing it
     check_trainable(data, dataset_path)
@@ -682,12 +691,12 @@ def make_trainer(
             simulator, state = LearnedSimulator(simulator_config), None
         if init_from is not None:
             _load_weights(simulator, init_from)
-    scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
-    if simulator.config.uses_velocities and not all(scene.velocities_recorded for scene in scenes):
+    if simulator.config.uses_velocities and not all(t.has_velocities for t in data.trajectories.values()):
         raise FignetError(
             f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "
             "model learns from; make it again with `fignetctl make-dataset`"
         )
+    scenes = SceneStore(data, simulator.config, TRAINING_STATIC_REACH, scene_cache)
     trainer = Trainer(scenes, simulator, training_config, device, data_hash, workers)
     if state is not None:
         trainer.load_state(state)

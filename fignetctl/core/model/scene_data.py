@@ -25,6 +25,7 @@ import dataclasses
 import numpy as np
 
 from fignetctl.core.model.scene_graph import SceneGeometry, scene_geometry
+from fignetctl.core.model.trained_ranges import largest_sides
 from fignetctl.core.trajectory import TrajectoryFile, estimated_velocities, read_trajectories
 
 
@@ -179,13 +180,10 @@ def scene_from_trajectory(
     """
     mesh_cache = {} if mesh_cache is None else mesh_cache
     trajectory = data.trajectories[trajectory_id]
-    meshes = []
-    for name, static, scale in zip(trajectory.mesh_names, trajectory.static, trajectory.scales):
-        key = (name, float(scale)) if static else name
-        if key not in mesh_cache:
-            mesh = data.meshes[name]
-            mesh_cache[key] = prepared_mesh(mesh.vertices, mesh.faces, static, scale, config)
-        meshes.append(mesh_cache[key])
+    meshes = [
+        _cached_mesh(data, name, static, scale, config, mesh_cache)
+        for name, static, scale in zip(trajectory.mesh_names, trajectory.static, trajectory.scales)
+    ]
     positions = np.asarray(trajectory.positions, np.float64)
     quaternions = np.asarray(trajectory.quaternions, np.float64)
     static = np.asarray(trajectory.static, bool)
@@ -199,6 +197,15 @@ def scene_from_trajectory(
             np.asarray(trajectory.angular_velocities, np.float64),
         ]
     return Scene(str(trajectory_id), geometry, positions, quaternions, float(data.dt), *velocities)
+
+
+def _cached_mesh(data, name, static, scale, config, cache):
+    """`prepared_mesh` of the file's mesh `name`, made once per name (and scale, if static)."""
+    key = (name, float(scale)) if static else name
+    if key not in cache:
+        mesh = data.meshes[name]
+        cache[key] = prepared_mesh(mesh.vertices, mesh.faces, static, scale, config)
+    return cache[key]
 
 
 def _crop_static_meshes(meshes, scales, static, positions, quaternions, reach):
@@ -273,6 +280,29 @@ class SceneStore(collections.abc.Sequence):
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_scenes": collections.OrderedDict()}
+
+
+def property_inputs(scenes) -> tuple[list, list]:
+    """What `trained_ranges.property_ranges` reads of a list of Scenes or a SceneStore: each
+    scene's ((O, 3) mass, friction, restitution, (O,) static) and (D,) `largest_sides` of its
+    moving objects; a store's from the file's arrays and prepared meshes, without making Scenes."""
+    if not isinstance(scenes, SceneStore):
+        return (
+            [(scene.geometry.properties, scene.geometry.static) for scene in scenes],
+            [largest_sides(scene.geometry) for scene in scenes],
+        )
+    pairs, sides = [], []
+    for key in scenes.keys:
+        trajectory = scenes.data.trajectories[key]
+        static = np.asarray(trajectory.static, bool)
+        pairs.append((np.asarray(trajectory.properties, np.float64).reshape(len(static), 3), static))
+        moving = []
+        for name, scale in zip(trajectory.mesh_names[~static], trajectory.scales[~static]):
+            vertices, _ = _cached_mesh(scenes.data, name, False, scale, scenes.config, scenes._meshes)
+            rest = np.asarray(vertices, np.float64) * float(scale)  # as scene_geometry scales it
+            moving.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
+        sides.append(np.asarray(moving, np.float64))
+    return pairs, sides
 
 
 def frame_counts(scenes) -> list[int]:

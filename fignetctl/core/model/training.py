@@ -36,10 +36,10 @@ from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
-from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts
+from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
-from fignetctl.core.model.trained_ranges import largest_sides, property_ranges, ranges_to_json
+from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.core.transforms import quat_conjugate, quat_multiply, quat_to_rotation_vector
@@ -482,10 +482,7 @@ class Trainer:
                 "the others are ordinary examples"
             )
         self.rank, device = distributed.join_process_group(device)
-        properties, sides = [], []
-        for scene in scenes:  # once: a SceneStore makes each Scene again after dropping it
-            properties.append((scene.geometry.properties, scene.geometry.static))
-            sides.append(largest_sides(scene.geometry))
+        properties, sides = property_inputs(scenes)
         simulator.trained_properties = property_ranges(properties, np.concatenate(sides) if sides else None)
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, scenes_from_data
+from fignetctl.core.model.scene_data import (
+    TRAINING_STATIC_REACH,
+    SceneStore,
+    frame_counts,
+    property_inputs,
+    scenes_from_data,
+)
 from fignetctl.core.model.training import (
     TrainingBatches,
     TrainingSettings,
@@ -24,11 +30,16 @@ CONFIG = dataclasses.replace(
 
 
 def _file(count=5):
-    """`count` boxes dropped from different heights with different spins, 6 to 10 frames long."""
+    """`count` boxes of different sizes and masses dropped from different heights with different
+    spins, 6 to 10 frames long."""
     trajectories, meshes = {}, None
     for k in range(count):
         data = box_drop_file(frames=6 + k, spin=1.0 + k, height=0.3 + 0.1 * k)
-        trajectories[f"{k:05d}"] = data.trajectories["00000"]
+        trajectory = data.trajectories["00000"]
+        scales = np.array([1.0, 0.6 + 0.1 * k], np.float32)
+        trajectories[f"{k:05d}"] = dataclasses.replace(
+            trajectory, scales=scales, mass=trajectory.mass * (1 + k)
+        )
         meshes = data.meshes
     return dataclasses.replace(data, meshes=meshes, trajectories=trajectories)
 
@@ -69,6 +80,23 @@ def test_a_store_without_a_capacity_keeps_every_scene_and_pickles_without_them()
     _same_scene(copy[3], store[3])
     with pytest.raises(ValueError, match="capacity"):
         SceneStore(_file(), CONFIG, capacity=0)
+
+
+def test_a_store_reads_the_trained_ranges_inputs_from_the_arrays_as_its_scenes_give_them():
+    data = _file()
+    store = SceneStore(data, CONFIG, TRAINING_STATIC_REACH, capacity=1)
+    (pairs, sides), (made_pairs, made_sides) = (
+        property_inputs(store),
+        property_inputs(scenes_from_data(data, CONFIG)),
+    )
+    assert len(store._scenes) == 0  # no Scene made
+    assert len(sides) == len(made_sides) == 5 and len({float(s[0]) for s in sides}) == 5
+    for (properties, static), (made_properties, made_static), side, made_side in zip(
+        pairs, made_pairs, sides, made_sides
+    ):
+        np.testing.assert_array_equal(properties, made_properties)
+        np.testing.assert_array_equal(static, made_static)
+        np.testing.assert_array_equal(side, made_side)
 
 
 def test_training_batches_are_the_same_whatever_the_store_keeps():

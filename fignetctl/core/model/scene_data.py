@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 
 from fignetctl.core.model.scene_graph import SceneGeometry, scene_geometry
-from fignetctl.core.model.trained_ranges import largest_sides
+from fignetctl.core.model.trained_ranges import largest_side, largest_sides
 from fignetctl.core.trajectory import TrajectoryFile, estimated_velocities, read_trajectories
 
 
@@ -296,12 +296,11 @@ def property_inputs(scenes) -> tuple[list, list]:
         trajectory = scenes.data.trajectories[key]
         static = np.asarray(trajectory.static, bool)
         pairs.append((np.asarray(trajectory.properties, np.float64).reshape(len(static), 3), static))
-        moving = []
-        for name, scale in zip(trajectory.mesh_names[~static], trajectory.scales[~static]):
-            vertices, _ = _cached_mesh(scenes.data, name, False, scale, scenes.config, scenes._meshes)
-            rest = np.asarray(vertices, np.float64) * float(scale)  # as scene_geometry scales it
-            moving.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
-        sides.append(np.asarray(moving, np.float64))
+        moving = [
+            _cached_mesh(scenes.data, name, False, scale, scenes.config, scenes._meshes)[0] * float(scale)
+            for name, scale in zip(trajectory.mesh_names[~static], trajectory.scales[~static])
+        ]  # scaled as scene_geometry scales them
+        sides.append(np.asarray([largest_side(rest) for rest in moving], np.float64))
     return pairs, sides
 
 

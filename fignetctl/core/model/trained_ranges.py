@@ -76,13 +76,20 @@ def trajectory_largest_sides(data, key) -> np.ndarray:
     )
 
 
+def largest_side(rest_vertices) -> float:
+    """The largest side (m) of the bounding box of (V, 3) scaled vertices in the object frame."""
+    return float((rest_vertices.max(axis=0) - rest_vertices.min(axis=0)).max())
+
+
 def largest_sides(geometry) -> np.ndarray:
     """(D,) the largest side (m) of each moving object's bounding box in its own frame."""
-    sides = []
-    for index in np.flatnonzero(~geometry.static):
-        rest = geometry.rest_vertices[geometry.vertex_object == index]
-        sides.append(float((rest.max(axis=0) - rest.min(axis=0)).max()))
-    return np.asarray(sides, np.float64)
+    return np.asarray(
+        [
+            largest_side(geometry.rest_vertices[geometry.vertex_object == index])
+            for index in np.flatnonzero(~geometry.static)
+        ],
+        np.float64,
+    )
 
 
 def ranges_to_json(ranges) -> str:

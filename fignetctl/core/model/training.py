@@ -452,7 +452,7 @@ def end_with_process(pid: int, worker_id: int = 0) -> None:
     """DataLoader `worker_init_fn`: end this worker as soon as process `pid` (the trainer) has
     ended. torch's own watchdog watches a worker's parent, which under forkserver is the fork
     server, so without this a trainer killed by a signal or the out-of-memory killer would leave
-    its workers behind, each holding every scene of the training file."""
+    its workers behind, each holding the training file's arrays and its own scenes."""
     import select
     import threading
 

@@ -4,10 +4,13 @@ recorded step (free fall; at rest or sliding or rolling steadily; an impact, whe
 changes by more than 5 g dt² beyond gravity; other contact) and the model's rigid next step
 (the network alone) is compared with the recording there. Impacts carry most of the squared
 error, so they are what an MSE loss fits; calm objects' small errors (and their bias, which
-pulls a resting object into the floor) are what a rollout adds up over many frames.
+pulls a resting object into the floor) are what a rollout adds up over many frames. With
+--radii, it also says, per regime, how many vertex-frames belong to an object with no face
+within each radius of another object's (no face-face edge at that collision radius) and how
+much of the squared error they carry: what a larger radius could reach.
 
     python benchmarks/regime_errors.py benchmarks/results/velocity-continued-12665-more-steps/model.pt \
-        data/movi-b-test.h5 -n 6 -o regimes.json
+        data/movi-b-test.h5 -n 6 --radii 0.2 0.3 0.4 -o regimes.json
 """
 
 from __future__ import annotations
@@ -30,13 +33,16 @@ def main() -> None:
     parser.add_argument("model", help="a model file from `fignetctl train`")
     parser.add_argument("data", help="a trajectory file (held-out)")
     parser.add_argument("-n", "--trajectories", type=int, default=6, help="its first n trajectories")
+    parser.add_argument(
+        "--radii", type=float, nargs="*", default=[], help="collision radii (m) to check the reach of"
+    )
     parser.add_argument("-o", "--output", default=None, help="json to write")
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
     with h5py.File(args.data, "r") as f:
         keys = sorted(f["trajectories"])[: args.trajectories]
     scenes = scenes_from_data(read_trajectories(args.data, keys), simulator.config, TRAINING_STATIC_REACH)
-    regimes = regime_errors(simulator, scenes)
+    regimes = regime_errors(simulator, scenes, args.radii)
     last = "velocity" if simulator.config.uses_velocities else "position"
     print(f"{'regime':18s} {'share':>6s} {'target':>8s} {'error':>8s} {'bias':>7s} {'of sq. error':>12s}")
     for name, figures in regimes.items():
@@ -50,10 +56,26 @@ def main() -> None:
     print(
         f"(RMS of |a_{last[0].replace('v', 'u')}| and of its error, and the error's mean upwards, mm per frame)"
     )
+    for radius in args.radii:
+        key = f"{radius:g}"
+        cells = [
+            f"{name} {figures['out_of_reach'][key]['share']:.3f} ({figures['out_of_reach'][key]['error_share']:.3f})"
+            for name, figures in regimes.items()
+            if figures["share"]
+        ]
+        print(
+            f"no face-face edge at {key} m, share of the regime (of all squared error): " + ", ".join(cells)
+        )
     if args.output:
         write_json(
             args.output,
-            {"model": args.model, "data": args.data, "trajectories": args.trajectories, "regimes": regimes},
+            {
+                "model": args.model,
+                "data": args.data,
+                "trajectories": args.trajectories,
+                "radii": args.radii,
+                "regimes": regimes,
+            },
         )
         print(args.output)
 

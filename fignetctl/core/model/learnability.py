@@ -131,25 +131,35 @@ def motion_regimes(scene, t, gravity, velocity_state=True) -> np.ndarray:
     ]
 
 
-def regime_errors(simulator, scenes) -> dict:
+def regime_errors(simulator, scenes, radii=()) -> dict:
     """The `rigid_corrections` errors of a model split by the recorded `motion_regimes`, in
     millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
     "error_rms_mm": {"position": of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
     the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls
     down), "error_share": of the squared error over all regimes}}. Small errors on calm objects
-    are what a rollout adds up frame after frame; on impacts they are what the loss is made of."""
+    are what a rollout adds up frame after frame; on impacts they are what the loss is made of.
+
+    With `radii` (m), each regime also gets "out_of_reach": {radius: {"share": of the regime's
+    vertex-frames whose object has no face within that radius of another object's face at
+    frame t (`objects_out_of_reach`: no face–face edge at that collision radius), "error_share":
+    theirs of the squared error over all regimes}}: how much of the error a larger radius
+    could give the network something to work with."""
     from fignetctl.core.model.training import REGIMES
 
     gravity = np.asarray(simulator.config.gravity, np.float64)
     down = gravity / np.linalg.norm(gravity)
     velocity_state = simulator.config.uses_velocities
-    labels, errors, targets = [], [], []
+    labels, errors, targets, out_of_reach = [], [], [], []
     for scene, t, prediction, truth in rigid_corrections(simulator, scenes):
         labels.append(motion_regimes(scene, t, gravity, velocity_state))
         errors.append(prediction - truth)
         targets.append(truth)
+        owner = scene.geometry.vertex_object[scene.geometry.dynamic_vertices]
+        out_of_reach.append(objects_out_of_reach(scene, t, radii)[:, owner])
     label, error, target = np.concatenate(labels), np.concatenate(errors), np.concatenate(targets)
-    total = float((error**2).sum())
+    out_of_reach = np.concatenate(out_of_reach, axis=1)
+    squared = (error**2).sum(1)
+    total = float(squared.sum())
     parts = (
         {"position": slice(0, 3), "velocity": slice(3, 6)} if velocity_state else {"position": slice(0, 3)}
     )
@@ -170,9 +180,33 @@ def regime_errors(simulator, scenes) -> dict:
             "target_rms_mm": {part: rms(target[:, cut], rows) for part, cut in parts.items()},
             "error_rms_mm": {part: rms(error[:, cut], rows) for part, cut in parts.items()},
             "bias_mm": float((error[rows, last] @ -down).mean() * 1e3),
-            "error_share": float((error[rows] ** 2).sum() / total) if total else 0.0,
+            "error_share": float(squared[rows].sum() / total) if total else 0.0,
         }
+        if len(radii):
+            result[name]["out_of_reach"] = {
+                f"{radius:g}": {
+                    "share": float(far[rows].mean()),
+                    "error_share": float(squared[rows & far].sum() / total) if total else 0.0,
+                }
+                for radius, far in zip(radii, out_of_reach)
+            }
     return result
+
+
+def objects_out_of_reach(scene, t, radii) -> np.ndarray:
+    """(len(radii), O) bool: whether each object of `scene` has no face within each radius (m)
+    of a face of another object at frame t, so a graph of that collision radius gives it no
+    face–face edge (static pairs never pair, as in the graph)."""
+    from fignetctl.core.model.scene_graph import collision_face_pairs
+
+    geometry = scene.geometry
+    far = np.ones((len(radii), geometry.num_objects), bool)
+    vertices = geometry.world_vertices(scene.positions[t], scene.quaternions[t]) if len(radii) else None
+    for row, radius in enumerate(radii):
+        i, j = collision_face_pairs(geometry, vertices, radius)
+        far[row, geometry.face_object[i]] = False
+        far[row, geometry.face_object[j]] = False
+    return far
 
 
 def _vertex_corrections(scene, t, after):

@@ -166,3 +166,17 @@ def test_regime_errors_of_a_model_that_sinks_one_millimetre_a_frame():
     fall = 10.0 / 60**2  # g dt², m per frame
     assert free["target_rms_mm"]["position"] == pytest.approx(fall * 1e3, rel=1e-3)
     assert impact["target_rms_mm"]["position"] == pytest.approx((2 * 3.0 / 60 - fall) * 1e3, rel=1e-3)
+
+
+def test_regime_errors_say_which_errors_lie_out_of_the_collision_radius():
+    # the unit box's underside is 1.45 m above the floor at the bounce (t = 6) and 1.48 m or
+    # more at every other frame: a radius of 1.47 m reaches the floor at the bounce alone
+    # (the floor kept within 10 m of the box, not training's 1 m)
+    scenes = scenes_from_data(_bouncing_box(impact=6), POSITIONS, static_reach=10.0)
+    regimes = regime_errors(_SinkingTwoFrameModel(), scenes, radii=(0.1, 1.47, 5.0))
+    free, impact = regimes["free fall"]["out_of_reach"], regimes["impact"]["out_of_reach"]
+    assert [free[r]["share"] for r in ("0.1", "1.47", "5")] == [1.0, 1.0, 0.0]
+    assert [impact[r]["share"] for r in ("0.1", "1.47", "5")] == [1.0, 0.0, 0.0]
+    assert free["0.1"]["error_share"] == pytest.approx(0.9) and free["5"]["error_share"] == 0.0
+    assert impact["0.1"]["error_share"] == pytest.approx(0.1) and impact["1.47"]["error_share"] == 0.0
+    assert "out_of_reach" not in regime_errors(_SinkingTwoFrameModel(), scenes)["impact"]

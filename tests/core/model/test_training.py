@@ -10,7 +10,15 @@ from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import RolloutError, rollout
 from fignetctl.core.model.scene_graph import GraphConfig
 from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig
-from fignetctl.core.model.training import TrainingSettings, make_trainer, network_threads
+from fignetctl.core.model.training import (
+    HeapTrimmer,
+    TrainingSettings,
+    _malloc_trim,
+    make_trainer,
+    network_threads,
+    resident_bytes,
+    return_freed_memory,
+)
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.errors import FignetError, FormatError
 from tests.conftest import box_drop_file
@@ -315,6 +323,55 @@ def test_network_threads_leave_the_workers_their_cores(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "3")  # as torchrun sets it: kept
     with network_threads(1, "cpu"):
         assert torch.get_num_threads() == before
+
+
+def _heap_blocks(size, count):
+    """`count` blocks of `size` bytes (under glibc's mmap threshold, so on the heap), written
+    to; all but the last freed, which keeps the heap's top in use. Returns a function that
+    frees the last one."""
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    libc.malloc.restype = ctypes.c_void_p
+    libc.free.argtypes = [ctypes.c_void_p]
+    blocks = [libc.malloc(size) for _ in range(count)]
+    for block in blocks:
+        ctypes.memset(block, 1, size)
+    for block in blocks[:-1]:
+        libc.free(block)
+    return lambda: libc.free(blocks[-1])
+
+
+GLIBC_ON_LINUX = pytest.mark.skipif(
+    _malloc_trim() is None or resident_bytes() is None, reason="glibc's malloc_trim and /proc"
+)
+
+
+@GLIBC_ON_LINUX
+def test_freed_heap_blocks_go_back_to_the_system():
+    """Blocks freed below a live one stay resident until `return_freed_memory` hands them back,
+    as a trainer's graphs of changing sizes did."""
+    size, count = 100_000, 300
+    free_last = _heap_blocks(size, count)
+    kept = resident_bytes()
+    return_freed_memory()
+    returned = kept - resident_bytes()
+    free_last()
+    assert returned > 0.8 * size * (count - 1)
+
+
+@GLIBC_ON_LINUX
+def test_the_heap_is_trimmed_only_when_memory_grew_past_its_limit():
+    heap = HeapTrimmer(growth=1.05)
+    assert heap.step()  # the first step sets the limit
+    limit = heap.limit
+    assert not heap.step() and heap.limit == limit  # no growth since
+    size = 100_000
+    free_last = _heap_blocks(size, int(0.2 * limit / size))  # 20 % more, freed but resident
+    grown = resident_bytes()
+    assert grown > limit and heap.step()
+    assert resident_bytes() < grown - 0.1 * limit and heap.limit < grown
+    free_last()
 
 
 def _descendants(pid):

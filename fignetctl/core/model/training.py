@@ -614,9 +614,9 @@ class Trainer:
         distributed.barrier()
 
 
-HEAP_GROWTH = 1.5
-"""How far a trainer's resident memory may grow past what it held after the heap was last
-trimmed (HeapTrimmer) before it is trimmed again."""
+HEAP_GROWTH = 2.0
+"""A trainer's heap is trimmed again once its resident memory reaches this many times what it
+held after the last trim (HeapTrimmer)."""
 
 
 @functools.cache
@@ -650,10 +650,10 @@ def return_freed_memory() -> None:
 class HeapTrimmer:
     """Keeps a trainer's resident memory near what it uses. Every step's graphs differ in size,
     and glibc keeps the blocks they freed: a trainer of 64 scenes grew by about 0.5 GB a step
-    until it was trimmed. Trimming every step costs the next step the page faults of getting
-    them back (about 10 % of a step of 64 scenes), so `step()` trims only when resident memory
-    has grown HEAP_GROWTH times past what it was after the last trim (docs/simulator.md,
-    "Memory")."""
+    until the kernel killed it. The trimmed pages come back as page faults in the next steps,
+    so `step()` trims only when resident memory has grown to HEAP_GROWTH times what it was
+    after the last trim: rarely at small batches, every step or two at 64 scenes, where it
+    costs time (docs/simulator.md, "Memory")."""
 
     def __init__(self, growth: float = HEAP_GROWTH):
         self.growth, self.limit = growth, 0

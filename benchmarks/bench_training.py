@@ -62,6 +62,8 @@ class Setting(NamedTuple):
     threads: int
     processes: int
     batch: int | None = None  # scenes per step and process (None: --batch-size)
+    pushforward: int = 0  # examples per step from the model's own prediction (needs --init-from)
+    device: str = "cpu"
 
 
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
@@ -83,6 +85,23 @@ if FAST != "bf16":
     del SETTINGS["+ bf16"]
 
 
+def gpu_settings(batch: int) -> dict:
+    """--device cuda: the network on the GPU in bf16, fed by more and more graph builders (all
+    the cores but the training process's), then with a quarter of the batch from pushforward,
+    which the training process builds itself, one scene at a time."""
+    builders = max(
+        1, (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()) - 1
+    )
+    gpu = Setting(False, "velocities", False, 0, "bf16", 1, 1, device="cuda")
+    settings = {"GPU (bf16), graphs built in the training process": gpu}
+    for workers in sorted({min(4, builders), builders}):
+        settings[f"GPU, {workers} worker processes"] = gpu._replace(workers=workers)
+    settings[f"GPU, {builders} workers, pushforward {batch // 4} of {batch}"] = gpu._replace(
+        workers=builders, pushforward=batch // 4
+    )
+    return settings
+
+
 def steps_at(batch, args) -> int:
     """Timed steps at `batch`: as many samples as args.steps steps of --batch-size."""
     return max(1, args.steps * args.batch_size // batch)
@@ -97,7 +116,7 @@ def measure(path, setting, args) -> float:
 
 
 def measure_here(path, setting, args) -> float:
-    concatenated, state, static_receivers, workers, precision, threads, processes, batch = setting
+    concatenated, state, static_receivers, workers, precision, threads, processes, batch = setting[:8]
     batch = batch or args.batch_size
     steps = steps_at(batch, args)
     torch.set_num_threads(threads)
@@ -109,13 +128,16 @@ def measure_here(path, setting, args) -> float:
     config = TrainingSettings(
         steps=args.warmup + steps,
         batch_size=batch,
+        pushforward=setting.pushforward,
         loss="mse",
         precision=precision,
         normalizer_accumulation_steps=args.warmup,
         checkpoint_every=10**9,
         seed=args.seed,
     )
-    trainer = make_trainer(path, simulator, config, workers=workers)
+    trainer = make_trainer(
+        path, simulator, config, device=setting.device, workers=workers, init_from=args.init_from
+    )
     clock = time.thread_time if args.single_core else time.perf_counter
     times = {}
 
@@ -233,6 +255,18 @@ def main() -> None:
         help="a checkout of 7143ceb^ (git worktree add DIR 7143ceb^): time its trainer too",
     )
     parser.add_argument(
+        "--device",
+        choices=("cpu", "cuda"),
+        default="cpu",
+        help="cuda: time the GPU settings (graph builders feeding the network on the GPU) instead",
+    )
+    parser.add_argument(
+        "--init-from",
+        metavar="MODEL",
+        default=None,
+        help="start every setting from this model file's weights (a pushforward setting needs it)",
+    )
+    parser.add_argument(
         "--as-rank", default=None, help=argparse.SUPPRESS
     )  # one process of a torchrun setting
     args = parser.parse_args()
@@ -243,11 +277,14 @@ def main() -> None:
         if os.environ.get("RANK", "0") == "0":
             print(rate)
         return
+    settings = gpu_settings(args.batch_size) if args.device == "cuda" else SETTINGS
     settings = {
         name: setting
-        for name, setting in SETTINGS.items()
+        for name, setting in settings.items()
         if not args.single_core or (setting.workers, setting.threads, setting.processes) == (0, 1, 1)
     }
+    if args.init_from is None:
+        settings = {name: setting for name, setting in settings.items() if not setting.pushforward}
     timers = {name: lambda s=setting: measure(args.data, s, args) for name, setting in settings.items()}
     before_rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -281,6 +318,7 @@ def main() -> None:
             "data": args.data,
             "cpus": os.cpu_count(),
             "cpu": cpu_name(),
+            "gpu": torch.cuda.get_device_name() if args.device == "cuda" else None,
             "clock": "training thread's CPU time" if args.single_core else "wall",
             "settings": {k: v._asdict() for k, v in settings.items()},
             "args": vars(args),

@@ -24,3 +24,15 @@ def test_version_1_copy_drops_the_velocities_and_keeps_the_frames(tmp_path, box_
     np.testing.assert_array_equal(trajectory.quaternions, before.trajectories[key].quaternions)
     with h5py.File(original) as f:
         assert f.attrs["format_version"] == 2  # the original is untouched
+
+
+def test_the_gpu_settings_feed_the_gpu_from_every_core_but_one(monkeypatch):
+    import os
+
+    bench = load_benchmark("bench_training")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)), raising=False)
+    settings = bench.gpu_settings(128)
+    assert {s.device for s in settings.values()} == {"cuda"}
+    assert [(s.workers, s.pushforward) for s in settings.values()] == [(0, 0), (4, 0), (15, 0), (15, 32)]
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert [(s.workers, s.pushforward) for s in bench.gpu_settings(8).values()] == [(0, 0), (1, 0), (1, 2)]

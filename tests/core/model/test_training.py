@@ -146,6 +146,32 @@ def test_runaway_rollout_stops_with_step_and_object_and_keeps_frames(box_file):
     assert error.value.positions.shape[0] == 2
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_training_on_the_gpu_follows_the_cpu_and_its_checkpoint_loads_on_the_cpu(box_file, tmp_path):
+    """The same run in float32 on both devices, one example per batch from the model's own
+    prediction (which runs on the model's device): the same losses, and a checkpoint written
+    on the GPU loads on the CPU, where it predicts as the GPU's weights do."""
+    config = _config(steps=4, batch_size=3, pushforward=1, normalizer_accumulation_steps=2)
+    runs = {}
+    for device in ("cpu", "cuda"):
+        runs[device] = make_trainer(box_file, TINY, config, device=device)
+        runs[device].run(tmp_path / f"{device}.pt")
+    losses = {device: [h["loss"] for h in trainer.history] for device, trainer in runs.items()}
+    np.testing.assert_allclose(losses["cuda"], losses["cpu"], rtol=1e-3)
+    loaded = load_checkpoint(tmp_path / "cuda.pt")
+    assert next(loaded.parameters()).device.type == "cpu"
+    scene = runs["cpu"].scenes[0]
+    window = (scene.geometry, scene.positions[:3], scene.quaternions[:3])
+    velocities = (scene.velocities[1], scene.angular_velocities[1])
+    on_gpu = runs["cuda"].simulator.eval().predict(*window, velocities=velocities)
+    on_cpu = loaded.eval().predict(*window, velocities=velocities)
+    assert sum(part is not None for part in on_cpu) >= 2  # positions and quaternions at least
+    for gpu_part, cpu_part in zip(on_gpu, on_cpu, strict=True):
+        assert (gpu_part is None) == (cpu_part is None)
+        if cpu_part is not None:
+            np.testing.assert_allclose(cpu_part, gpu_part, rtol=1e-4, atol=1e-6)
+
+
 def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):
     from fignetctl.core.model.checkpoint import export_checkpoint
 

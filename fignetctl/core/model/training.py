@@ -424,6 +424,10 @@ def joined(first: dict, second: dict) -> dict:
     return batch
 
 
+PREFETCH_FACTOR = 4
+"""Batches each worker builds ahead of the trainer."""
+
+
 def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
     """Batches start .. stop−1, built by `workers` processes (0: in this one).
 
@@ -441,7 +445,7 @@ def batch_stream(batches: TrainingBatches, start: int, stop: int, workers: int):
             batch_size=None,
             sampler=range(start, stop),
             num_workers=workers,
-            prefetch_factor=4,
+            prefetch_factor=PREFETCH_FACTOR,
             multiprocessing_context=multiprocessing.get_context(method),
             worker_init_fn=functools.partial(end_with_process, os.getpid()),
         )

@@ -21,15 +21,15 @@ checkout of commit 7143ceb^, the serial trainer before the velocity state and th
 default) and --batch-size, in a process that imports fignetctl from DIR, on a version 1 copy of
 the data (its reader knows no other), and every setting is also given as a ratio to it.
 
+    git worktree add /tmp/before 7143ceb^
+    python benchmarks/bench_training.py data/movi-b-train.h5 --batch-size 16 --steps 12 --rounds 3 \
+        --before /tmp/before -o benchmarks/results/training-throughput-avx512-batch16.json
+
 With --device cuda the settings are the GPU's instead, from the network on the GPU with the
 graphs built in the training process, reported as ratios to that:
 
     python benchmarks/bench_training.py data/movi-b-train.h5 --device cuda --batch-size 128 \
         --steps 20 --rounds 1 --init-from MODEL -o gpu-throughput.json
-
-    git worktree add /tmp/before 7143ceb^
-    python benchmarks/bench_training.py data/movi-b-train.h5 --batch-size 16 --steps 12 --rounds 3 \
-        --before /tmp/before -o benchmarks/results/training-throughput-avx512-batch16.json
 """
 
 from __future__ import annotations

@@ -72,8 +72,9 @@ class Setting(NamedTuple):
     threads: int
     processes: int
     batch: int | None = None  # scenes per step and process (None: --batch-size)
-    pushforward: int = 0  # examples per step from the model's own prediction (needs --init-from)
+    pushforward: int = 0  # examples per step from a model's prediction (needs --init-from)
     device: str = "cpu"
+    fixed_pushforward: bool = False  # from the --init-from model's, built by the workers
 
 
 FAST = resolve_precision("auto", "cpu")  # bf16 where native, else fp32
@@ -95,21 +96,34 @@ if FAST != "bf16":
     del SETTINGS["+ bf16"]
 
 
-def gpu_settings(batch: int) -> dict:
+def builders() -> int:
+    """Graph-building workers that leave the training process a core."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, cores - 1)
+
+
+def gpu_settings() -> dict:
     """--device cuda: the network on the GPU in bf16, fed by more and more graph builders (all
-    the cores but the training process's), then with a quarter of the batch from pushforward,
-    which the training process builds itself, one scene at a time."""
-    builders = max(
-        1, (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()) - 1
-    )
+    the cores but the training process's)."""
     gpu = Setting(False, "velocities", False, 0, "bf16", 1, 1, device="cuda")
     settings = {"GPU (bf16), graphs built in the training process": gpu}
-    for workers in sorted({min(4, builders), builders}):
+    for workers in sorted({min(4, builders()), builders()}):
         settings[f"GPU, {workers} graph-building workers"] = gpu._replace(workers=workers)
-    settings[f"GPU, {builders} workers, pushforward {batch // 4} of {batch}"] = gpu._replace(
-        workers=builders, pushforward=batch // 4
-    )
     return settings
+
+
+def pushforward_settings(base: Setting, batch: int) -> dict:
+    """`base` with a quarter of each batch from pushforward: from the trained model's predictions,
+    made and built in the training process one scene at a time, or from a fixed model's (the
+    --init-from model: `train --pushforward-model`), built by the workers with the others."""
+    where = "GPU" if base.device == "cuda" else FAST
+    quarter = base._replace(pushforward=batch // 4)
+    return {
+        f"{where}, {base.workers} workers, pushforward {batch // 4} of {batch} in the training process": quarter,
+        f"{where}, {base.workers} workers, pushforward {batch // 4} of {batch} from a fixed model, in the workers": (
+            quarter._replace(fixed_pushforward=True)
+        ),
+    }
 
 
 def steps_at(batch, args) -> int:
@@ -140,6 +154,7 @@ def measure_here(path, setting, args) -> float:
         steps=warmup + steps,
         batch_size=batch,
         pushforward=setting.pushforward,
+        pushforward_model=args.init_from if setting.fixed_pushforward else "",
         loss="mse",
         precision=precision,
         normalizer_accumulation_steps=args.warmup,
@@ -275,7 +290,14 @@ def main() -> None:
         "--init-from",
         metavar="MODEL",
         default=None,
-        help="start every setting from this model file's weights (a pushforward setting needs it)",
+        help="start every setting from this model file's weights, and time pushforward too: a quarter "
+        "of each batch from the trained model's predictions or from this fixed model's",
+    )
+    parser.add_argument(
+        "--only",
+        action="append",
+        metavar="TEXT",
+        help="only the settings whose name contains TEXT (repeatable; the first one left is the baseline)",
     )
     parser.add_argument(
         "--as-rank", default=None, help=argparse.SUPPRESS
@@ -288,14 +310,22 @@ def main() -> None:
         if os.environ.get("RANK", "0") == "0":
             print(rate)
         return
-    settings = gpu_settings(args.batch_size) if args.device == "cuda" else SETTINGS
+    settings = dict(gpu_settings() if args.device == "cuda" else SETTINGS)
+    if args.init_from is not None:
+        fed = (
+            gpu_settings()[f"GPU, {builders()} graph-building workers"]
+            if args.device == "cuda"
+            else Setting(False, "velocities", False, 1, FAST, 1, 1)
+        )
+        settings.update(pushforward_settings(fed, args.batch_size))
     settings = {
         name: setting
         for name, setting in settings.items()
         if not args.single_core or (setting.workers, setting.threads, setting.processes) == (0, 1, 1)
+        if not args.only or any(text in name for text in args.only)
     }
-    if args.init_from is None:
-        settings = {name: setting for name, setting in settings.items() if not setting.pushforward}
+    if not settings:
+        parser.error(f"no setting's name contains any of {args.only}")
     timers = {name: lambda s=setting: measure(args.data, s, args) for name, setting in settings.items()}
     before_rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -320,7 +350,9 @@ def main() -> None:
             row["ratio_to_before"] = row["samples_per_s"] / medians[before_rows[0]]
     unit = "samples per CPU-second" if args.single_core else "samples/s"
     before_column = f" × {BEFORE_DEFAULT_BATCH}-batch trainer of 7143ceb^ |" if before_rows else ""
-    print(f"\n| setting | {unit} | × serial |{before_column}\n|---|---|---|{'---|' if before_rows else ''}")
+    print(
+        f"\n| setting | {unit} | × first row |{before_column}\n|---|---|---|{'---|' if before_rows else ''}"
+    )
     for name, row in rows.items():
         before_cell = f" {row['ratio_to_before']:.2f} |" if before_rows else ""
         print(f"| {name} | {row['samples_per_s']:.1f} | {row['ratio']:.2f} |{before_cell}")

@@ -100,6 +100,13 @@ class Settings:
         low=0,
         high=4095,
     )
+    pushforward_model: str | None = setting(
+        None,
+        "Start the --pushforward examples from this fixed model file's predictions instead of the "
+        "trained model's; the --workers then build them with the others, so they scale with the "
+        "workers (docs/simulator.md).",
+        metavar="FILE",
+    )
     learning_rate: tuple[float, float] = setting(
         (3e-4, 3e-5),
         "Adam's learning rate decays exponentially from INITIAL to FINAL over --steps (the paper's "
@@ -173,6 +180,7 @@ def configs(settings: Settings, device: str = "cpu"):
         learning_rate_final=settings.learning_rate[1],
         loss=settings.loss,
         pushforward=settings.pushforward,
+        pushforward_model=settings.pushforward_model or "",
         frame_sampling=settings.frame_sampling,
         calm_weight=settings.calm_weight,
         target_keeps_noise=settings.target_keeps_noise,
@@ -217,6 +225,10 @@ def run(
         raise SettingError(
             f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "
             "the others are ordinary examples"
+        )
+    if settings.pushforward_model and not settings.pushforward:
+        raise SettingError(
+            "--pushforward-model gives the pushforward examples' start: give --pushforward N too"
         )
     if settings.resume and overwrite:
         raise SettingError("--resume continues --output, --overwrite replaces it: give one")

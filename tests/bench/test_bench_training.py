@@ -31,8 +31,13 @@ def test_the_gpu_settings_feed_the_gpu_from_every_core_but_one(monkeypatch):
 
     bench = load_benchmark("bench_training")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)), raising=False)
-    settings = bench.gpu_settings(128)
+    settings = bench.gpu_settings()
     assert {s.device for s in settings.values()} == {"cuda"}
-    assert [(s.workers, s.pushforward) for s in settings.values()] == [(0, 0), (4, 0), (15, 0), (15, 32)]
+    assert [s.workers for s in settings.values()] == [0, 4, 15]
+    pushforward = bench.pushforward_settings(settings["GPU, 15 graph-building workers"], 128)
+    assert [(s.workers, s.pushforward, s.fixed_pushforward) for s in pushforward.values()] == [
+        (15, 32, False),
+        (15, 32, True),
+    ]
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
-    assert [(s.workers, s.pushforward) for s in bench.gpu_settings(8).values()] == [(0, 0), (1, 0), (1, 2)]
+    assert [s.workers for s in bench.gpu_settings().values()] == [0, 1]

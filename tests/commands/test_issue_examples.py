@@ -112,6 +112,14 @@ CASES = [
     ("train --learning-rate nan nan", "train {trajectory} --learning-rate nan nan --steps 1 -o {out}.pt"),
     ("train --batch-size 1000", "train {trajectory} --batch-size 100000 --steps 1 -o {out}.pt"),
     ("train --pushforward 4", "train {trajectory} --batch-size 4 --pushforward 4 --steps 1 -o {out}.pt"),
+    (
+        "train --pushforward-model alone",
+        "train {trajectory} --pushforward-model {trajectory} --steps 1 -o {out}.pt",
+    ),
+    (
+        "train --pushforward-model not a model",
+        "train {trajectory} --pushforward 1 --pushforward-model {trajectory} --steps 1 -o {out}.pt",
+    ),
     ("make-dataset --seed 1e20", "make-dataset --preset movi-b -n 1 --seed 99999999999999999999 -o {out}.h5"),
     (
         "make-dataset --seed 2**70",

@@ -3,7 +3,8 @@
 Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and t+1 around
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
 regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss (with
-`pushforward`, that many of them take frame t from the simulator's own prediction instead; with
+`pushforward`, that many of them take frame t from the simulator's own prediction instead, or
+from a fixed model's with `pushforward_model`; with
 `frame_sampling` 'motion', impact frames are drawn more often and weighted less).
 Adam with a learning rate decaying exponentially from `learning_rate_initial` to
 `learning_rate_final`.
@@ -75,8 +76,12 @@ class TrainingSettings:
     """Examples of each batch (of `batch_size`) whose frame t is the simulator's own prediction
     from the true frame t−1, without a gradient through that prediction, instead of a noisy copy
     of the truth (the pushforward trick of Brandstetter et al. 2022: the network meets the
-    errors its own rollouts make); built in the training process, ordinary examples until the
-    normalizers freeze."""
+    errors its own rollouts make); built in the training process (by the workers with a
+    `pushforward_model`), ordinary examples until the normalizers freeze."""
+    pushforward_model: str = ""
+    """A model file: the `pushforward` examples start from its predictions, a fixed model's,
+    instead of the trained one's, and are built with the others, by the workers, so they
+    scale with them ("" : from the trained model, in the training process)."""
     frame_sampling: str = "uniform"
     """Which frames the examples are: 'uniform' (a trajectory, then a frame t, each uniformly),
     or 'motion': half of the draws so and half in proportion to how much the frame's motion
@@ -188,9 +193,10 @@ def training_example(simulator_config, scene, frame, generator, config: Training
     return example_from_state(simulator_config, scene, frame, positions, quaternions, velocities, config)
 
 
-def pushforward_example(simulator, scene, frame, config: TrainingSettings):
+def pushforward_example(simulator, scene, frame, config: TrainingSettings, example_config=None):
     """The example at `frame` (2 ≤ frame ≤ T − 2) whose frame t is what `simulator` predicts from
-    the true frames before it (and the true velocities at t − 1 for a velocity state)."""
+    the true frames before it (and the true velocities at t − 1 for a velocity state), as a graph
+    of `example_config` (the trained simulator's; default: `simulator`'s)."""
     window = slice(frame - 2, frame + 1)
     velocities = None
     if simulator.config.uses_velocities:
@@ -204,7 +210,9 @@ def pushforward_example(simulator, scene, frame, config: TrainingSettings):
     step_velocities = None
     if simulator.config.uses_velocities:
         step_velocities = (predicted[2] * scene.dt, predicted[3] * scene.dt)
-    return example_from_state(simulator.config, scene, frame, positions, quaternions, step_velocities, config)
+    return example_from_state(
+        example_config or simulator.config, scene, frame, positions, quaternions, step_velocities, config
+    )
 
 
 def example_from_state(simulator_config, scene, frame, positions, quaternions, velocities, config):
@@ -351,19 +359,43 @@ class FrameSampler:
         return scene, 1 + index - int(self.starts[scene]), float(self.weights[index])
 
 
+def pushforward_examples(simulator, scenes, example_config, config: TrainingSettings, rank, step) -> dict:
+    """The `pushforward` examples of batch `step` (from (seed, rank, step) alone, as the others)
+    on frames `simulator` predicted, as graphs of `example_config`; ordinary noisy ones while the
+    normalizers are still gathering or where a trajectory is under four frames long."""
+    rng = np.random.default_rng([config.seed, rank, step, 1])
+    noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
+    ordinary = step < config.normalizer_accumulation_steps
+    examples, weights = [], []
+    for _ in range(config.pushforward):
+        scene = scenes[rng.integers(len(scenes))]
+        frames = scene.positions.shape[0]
+        frame = int(rng.integers(2, frames - 1)) if frames >= 4 else 1
+        if ordinary or frames < 4:
+            examples.append(training_example(example_config, scene, frame, noise_generator, config))
+        else:
+            examples.append(pushforward_example(simulator, scene, frame, config, example_config))
+        weights.append(row_weights(scene, frame, example_config, config))
+    return batch_of(examples, weights if config.calm_weight else None)
+
+
 class TrainingBatches(torch.utils.data.Dataset):
     """Batch k of a run, built from (seed, rank, k) alone: picklable, so DataLoader workers
-    build batches while the training process runs the network."""
+    build batches while the training process runs the network. With a `pushforward_simulator`
+    (the fixed model of `pushforward_model`) the batches hold the pushforward examples too."""
 
-    def __init__(self, scenes, simulator_config, config: TrainingSettings, rank: int = 0):
+    def __init__(
+        self, scenes, simulator_config, config: TrainingSettings, rank: int = 0, pushforward_simulator=None
+    ):
         self.scenes, self.simulator_config, self.config, self.rank = scenes, simulator_config, config, rank
         self.sampler = FrameSampler(scenes, config.frame_sampling, simulator_config.gravity)
+        self.pushforward_simulator = pushforward_simulator
 
     def __len__(self) -> int:
         return self.config.steps
 
     def __getitem__(self, step: int) -> dict:
-        """`batch_of` the step's examples but the `pushforward` ones."""
+        """`batch_of` the step's examples, the `pushforward` ones only with a fixed model."""
         rng = np.random.default_rng([self.config.seed, self.rank, step])
         noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
         examples, weights = [], []
@@ -378,7 +410,38 @@ class TrainingBatches(torch.utils.data.Dataset):
                 weight * row_weights(self.scenes[scene], frame, self.simulator_config, self.config)
             )
         weighted = self.config.frame_sampling != "uniform" or self.config.calm_weight
-        return batch_of(examples, weights if weighted else None)
+        batch = batch_of(examples, weights if weighted else None)
+        if self.config.pushforward and self.pushforward_simulator is not None:
+            with torch_threads(1):  # as in a worker: the same sums, so the same batch in any process
+                own = pushforward_examples(
+                    self.pushforward_simulator,
+                    self.scenes,
+                    self.simulator_config,
+                    self.config,
+                    self.rank,
+                    step,
+                )
+            batch = joined(batch, own)
+        return batch
+
+
+def fixed_pushforward_model(config: TrainingSettings, simulator_config):
+    """The fixed model of `config.pushforward_model` on the CPU (None without one), or a clear
+    error when it cannot start from the trained model's state."""
+    if not config.pushforward_model:
+        return None
+    if not config.pushforward:
+        raise FignetError(
+            f"pushforward_model = {config.pushforward_model!r} with pushforward = 0: it starts the "
+            "pushforward examples, so give some"
+        )
+    model = load_checkpoint(config.pushforward_model).eval()
+    if model.config.uses_velocities != simulator_config.uses_velocities:
+        raise FignetError(
+            f"{config.pushforward_model}: its state is {model.config.state!r}, the trained model's "
+            f"{simulator_config.state!r}; give a pushforward model of the trained model's state"
+        )
+    return model
 
 
 def row_weights(scene, frame, simulator_config, config: TrainingSettings):
@@ -492,7 +555,9 @@ class Trainer:
         self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash, self.workers = device, data_hash, workers
         self.optimizer = torch.optim.Adam(simulator.parameters(), lr=config.learning_rate_initial)
-        self.batches = TrainingBatches(scenes, simulator.config, config, self.rank)
+        self.batches = TrainingBatches(
+            scenes, simulator.config, config, self.rank, fixed_pushforward_model(config, simulator.config)
+        )
         self.step = 0
         self.history = []
         self.heap = HeapTrimmer()
@@ -501,8 +566,13 @@ class Trainer:
         """One optimiser step on `batch` (default: this step's batch, built here)."""
         batch = self.batches[self.step] if batch is None else batch
         accumulate = self.step < self.config.normalizer_accumulation_steps
-        if self.config.pushforward:
-            batch = joined(batch, self.own_examples(self.step, accumulate))
+        if self.config.pushforward and not self.config.pushforward_model:
+            batch = joined(
+                batch,
+                pushforward_examples(
+                    self.simulator, self.scenes, self.simulator.config, self.config, self.rank, self.step
+                ),
+            )
         graph = batch["graph"].to(self.device)
         normalized_targets = self.simulator.normalized_targets(batch["targets"].to(self.device), accumulate)
         with torch.autocast(
@@ -514,26 +584,6 @@ class Trainer:
         loss = regression_loss(predictions.float(), normalized_targets, self.config, weights)
         self._apply(loss)
         return float(loss.detach())
-
-    def own_examples(self, step: int, ordinary: bool) -> dict:
-        """The `pushforward` examples of batch `step` (from (seed, rank, step) alone, as the
-        others): on frames the simulator predicted, or ordinary noisy ones when `ordinary`
-        (the normalizers are still gathering) or a trajectory is under four frames long."""
-        rng = np.random.default_rng([self.config.seed, self.rank, step, 1])
-        noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
-        examples, weights = [], []
-        for _ in range(self.config.pushforward):
-            scene = self.scenes[rng.integers(len(self.scenes))]
-            frames = scene.positions.shape[0]
-            frame = int(rng.integers(2, frames - 1)) if frames >= 4 else 1
-            if ordinary or frames < 4:
-                examples.append(
-                    training_example(self.simulator.config, scene, frame, noise_generator, self.config)
-                )
-            else:
-                examples.append(pushforward_example(self.simulator, scene, frame, self.config))
-            weights.append(row_weights(scene, frame, self.simulator.config, self.config))
-        return batch_of(examples, weights if self.config.calm_weight else None)
 
     def _apply(self, loss):
         for group in self.optimizer.param_groups:

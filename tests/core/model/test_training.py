@@ -14,10 +14,14 @@ from fignetctl.core.model.training import (
     HeapTrimmer,
     TrainingSettings,
     _malloc_trim,
+    joined,
     make_trainer,
     network_threads,
+    pushforward_examples,
     resident_bytes,
     return_freed_memory,
+    simulator_config_for,
+    torch_threads,
 )
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.errors import FignetError, FormatError
@@ -170,6 +174,70 @@ def test_training_on_the_gpu_follows_the_cpu_and_its_checkpoint_loads_on_the_cpu
         assert (gpu_part is None) == (cpu_part is None)
         if cpu_part is not None:
             np.testing.assert_allclose(cpu_part, gpu_part, rtol=1e-4, atol=1e-6)
+
+
+def _same_batch(actual, expected):
+    for key in ("rows", "targets"):
+        torch.testing.assert_close(actual[key], expected[key], rtol=0, atol=0)
+    torch.testing.assert_close(actual["graph"].node_features, expected["graph"].node_features, rtol=0, atol=0)
+
+
+def test_pushforward_from_a_fixed_model_equal_to_the_trained_one_is_the_trainers_own(box_file, tmp_path):
+    """The batch that holds the pushforward examples of a fixed model with the trained model's
+    weights is the one the training process makes from its own predictions; a fixed model with
+    other weights starts them elsewhere."""
+    config = _config(batch_size=3, pushforward=2, normalizer_accumulation_steps=2)
+    trainer = make_trainer(box_file, TINY, config)
+    trainer.run(until_step=2)  # the normalizers' statistics, which a prediction needs
+    save_checkpoint(tmp_path / "same.pt", trainer.simulator)
+    fixed = make_trainer(
+        box_file, TINY, dataclasses.replace(config, pushforward_model=str(tmp_path / "same.pt"))
+    )
+    with torch_threads(1):  # the fixed model predicts on one thread, in any process
+        own = pushforward_examples(trainer.simulator, trainer.scenes, trainer.simulator.config, config, 0, 5)
+    _same_batch(fixed.batches[5], joined(trainer.batches[5], own))
+    with torch.no_grad():
+        for parameter in trainer.simulator.parameters():
+            parameter.mul_(1.5)
+    save_checkpoint(tmp_path / "other.pt", trainer.simulator)
+    other = make_trainer(
+        box_file, TINY, dataclasses.replace(config, pushforward_model=str(tmp_path / "other.pt"))
+    )
+    rows = len(trainer.batches[5]["targets"])  # the ordinary examples come first
+    others, same = other.batches[5]["targets"], fixed.batches[5]["targets"]
+    assert torch.equal(others[:rows], same[:rows]) and not torch.equal(others[rows:], same[rows:])
+
+
+def test_a_fixed_pushforward_model_trains_alike_in_workers_and_resumes_exactly(box_file, tmp_path):
+    trained_a_little = make_trainer(box_file, TINY, _config(steps=2, normalizer_accumulation_steps=2))
+    trained_a_little.run()
+    save_checkpoint(tmp_path / "fixed.pt", trained_a_little.simulator)
+    config = _config(
+        batch_size=3,
+        pushforward=1,
+        normalizer_accumulation_steps=2,
+        pushforward_model=str(tmp_path / "fixed.pt"),
+    )
+    here = make_trainer(box_file, TINY, config)
+    here.run()
+    in_worker = make_trainer(box_file, TINY, config, workers=1)
+    in_worker.run(tmp_path / "half.pt", until_step=4)
+    resumed = make_trainer(box_file, TINY, _config(), resume_from=tmp_path / "half.pt", workers=1)
+    assert resumed.config.pushforward_model == str(tmp_path / "fixed.pt")
+    resumed.run()
+    for name, value in here.simulator.state_dict().items():
+        torch.testing.assert_close(resumed.simulator.state_dict()[name], value, rtol=0, atol=0)
+
+
+def test_a_fixed_pushforward_model_of_another_state_or_without_pushforward_is_refused(box_file, tmp_path):
+    velocity_model = LearnedSimulator(simulator_config_for("fignet-star", "tiny", 0.1, state="velocities"))
+    save_checkpoint(tmp_path / "velocities.pt", velocity_model)
+    with pytest.raises(FignetError, match="its state is 'velocities', the trained model's 'positions'"):
+        make_trainer(
+            box_file, TINY, _config(pushforward=1, pushforward_model=str(tmp_path / "velocities.pt"))
+        )
+    with pytest.raises(FignetError, match="with pushforward = 0"):
+        make_trainer(box_file, TINY, _config(pushforward_model=str(tmp_path / "velocities.pt")))
 
 
 def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):

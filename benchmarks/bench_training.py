@@ -312,10 +312,16 @@ def main() -> None:
         return
     settings = dict(gpu_settings() if args.device == "cuda" else SETTINGS)
     if args.init_from is not None:
-        fed = (
-            gpu_settings()[f"GPU, {builders()} graph-building workers"]
-            if args.device == "cuda"
-            else Setting(False, "velocities", False, 1, FAST, 1, 1)
+        cuda = args.device == "cuda"
+        fed = Setting(
+            False,
+            "velocities",
+            False,
+            builders() if cuda else 1,
+            "bf16" if cuda else FAST,
+            1,
+            1,
+            device=args.device,
         )
         settings.update(pushforward_settings(fed, args.batch_size))
     settings = {

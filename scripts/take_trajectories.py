@@ -20,18 +20,20 @@ from fignetctl.errors import FignetError, FormatError
 def take(source, destination, count: int, start: int = 0):
     source = require_regular_file(source, "trajectory")
     try:
-        with h5py.File(source, "r") as f, atomic_path(destination) as tmp:
-            keys = list(f["trajectories"].keys())
-            if len(keys) < start + count:
-                raise FignetError(
-                    f"{source}: holds {len(keys)} trajectories, not {start + count}; "
-                    "ask for fewer (-n) or start earlier (--start)"
-                )
+        f = h5py.File(source, "r")
+        keys = list(f["trajectories"].keys())
+    except (OSError, KeyError) as error:
+        raise FormatError(f"{source}: not a trajectory file ({error}); give one from make-dataset") from None
+    with f:
+        if len(keys) < start + count:
+            raise FignetError(
+                f"{source}: holds {len(keys)} trajectories, not {start + count}; "
+                "ask for fewer (-n) or start earlier (--start)"
+            )
+        with atomic_path(destination) as tmp:
             with h5py.File(tmp, "w") as g:
                 copy(f, g, keys[start : start + count], f"{source}: {start}..{start + count - 1}")
             read_trajectories(tmp)  # a clear error, and no DESTINATION, if the copy is not a valid file
-    except (OSError, KeyError) as error:
-        raise FormatError(f"{source}: not a trajectory file ({error}); give one from make-dataset") from None
     return destination
 
 
@@ -69,5 +71,5 @@ if __name__ == "__main__":
         sys.exit("error: -n must be 1 or more and --start 0 or more")
     try:
         print(take(args.source, args.destination, args.n, args.start))
-    except FignetError as error:
+    except (FignetError, OSError) as error:  # OSError: a damaged source chunk, a full disk
         sys.exit(f"error: {error}")

@@ -411,7 +411,7 @@ class TrainingBatches(torch.utils.data.Dataset):
             )
         weighted = self.config.frame_sampling != "uniform" or self.config.calm_weight
         batch = batch_of(examples, weights if weighted else None)
-        if self.config.pushforward and self.pushforward_simulator is not None:
+        if self.pushforward_simulator is not None:  # only with pushforward examples to start
             with torch_threads(1):  # as in a worker: the same sums, so the same batch in any process
                 own = pushforward_examples(
                     self.pushforward_simulator,

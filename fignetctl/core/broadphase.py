@@ -5,22 +5,29 @@ distance is at most the collision radius. Static–static pairs never get an edg
 and the environment do not collide with each other), so they are never even looked at.
 
 The broad phase compares `FaceGroup`s, one per object: its faces' world triangles and their
-conservative bounds. It finds candidates with k-d trees over face centres and then keeps
-exactly the pairs that `closest_points_triangles` puts within the radius:
+conservative bounds. It finds candidates by bounds alone (with k-d trees over face centres
+for large groups) and then keeps exactly the pairs that `closest_points_triangles` puts
+within the radius:
 
 1. Each face is bounded by a sphere about its centroid (radius r_i). Two faces can be within
    the radius R only if |c_i - c_j| <= R + r_i + r_j.
 2. Only group pairs that are not both static and whose bounding boxes, grown by R, overlap
    are looked at: far-apart objects cost one box test, and static–static pairs nothing.
-3. Faces differ wildly in size (a floor of 2 huge triangles beside small object faces), so
-   each group's faces are split into size classes by powers of two of r_i, each with a
-   k-d tree of centres. For each pair of classes (k, l) of the two groups, one tree query
-   with the class bound R + max r_k + max r_l returns a superset, which the per-pair sphere
-   test and an axis-aligned box test (boxes grown by R) then thin out. A huge face is thus
-   only tested with a bound of its own size, never inserted into a grid of small cells.
-4. The exact distance decides, computed for each pair in the order (lower face index,
-   higher) exactly as the brute force does. The bounds in 1–3 carry a small relative slack,
-   so a pair at exactly the radius is never lost to rounding, and the result equals
+   Of such a pair, only the faces whose boxes, grown by R, meet the other group's box can
+   be within R of it.
+3. Where two groups are small and those faces make few pairs (two objects near each other,
+   an object on a small floor), every pair of them gets the sphere test and an axis-aligned
+   box test (boxes grown by R), on the whole table at once. Otherwise (an object beside a
+   large static mesh) k-d trees find the candidates: faces differ wildly in size (a floor of 2 huge
+   triangles beside small object faces), so each group's faces are split into size classes
+   by powers of two of r_i, each with a k-d tree of centres. For each pair of classes
+   (k, l) of the two groups, one tree query with the class bound R + max r_k + max r_l
+   returns a superset, which the same two tests then thin out. A huge face is thus only
+   tested with a bound of its own size, never inserted into a grid of small cells.
+4. A pair that the line between its centroids separates by more than R is dropped; the
+   exact distance decides the others, computed for each pair in the order (lower face
+   index, higher) exactly as the brute force does. The bounds in 1–4 carry a small relative
+   slack, so a pair at exactly the radius is never lost to rounding, and the result equals
    `brute_force_face_pairs` bit for bit.
 
 Static geometry is usually at rest, so its groups need not be rebuilt: a `StaticFaceIndex`
@@ -44,8 +51,16 @@ from fignetctl.core.triangles import closest_points_triangles
 # Relative and absolute slack on the conservative bounds (not on the exact test).
 BOUND_RELATIVE_SLACK = 1e-9
 BOUND_ABSOLUTE_SLACK = 1e-12
+# Slack, relative to the coordinates' size, on the separating-axis gaps that drop candidates
+# before the exact test (far above their rounding).
+SEPARATION_SLACK = 1e-9
 # Faces smaller than 2**-SIZE_CLASS_DEPTH of the largest share the last size class.
 SIZE_CLASS_DEPTH = 20
+# Two groups of at most DENSE_GROUP_FACES faces each have their faces near the other's box
+# paired directly (every pair bound-tested) when these make at most DENSE_CANDIDATE_PAIRS
+# pairs; other group pairs are searched through k-d trees.
+DENSE_GROUP_FACES = 4096
+DENSE_CANDIDATE_PAIRS = 1 << 15
 # Candidate pairs checked exactly per pass of the brute-force reference.
 BRUTE_FORCE_PAIRS_PER_PASS = 1 << 20
 
@@ -248,8 +263,26 @@ def _group_pairs_in_reach(groups, group_static, radius, margins):
     return list(zip(first[keep].tolist(), second[keep].tolist(), reach[keep].tolist()))
 
 
+def _rows_near_box(group, lower, upper, radius):
+    """Local rows of the faces of `group` whose boxes, grown by radius, meet the box
+    [lower, upper] (another group's): no face outside it can be in reach of that group."""
+    slack_radius = _slack(radius)
+    near = (group.bounds.lower <= upper + slack_radius) & (group.bounds.upper >= lower - slack_radius)
+    return np.flatnonzero(near.all(axis=1))
+
+
 def _group_pair_candidates(group_1, group_2, radius):
-    """Local rows (k,), (k,) of face pairs of two groups that the sphere and box bounds allow."""
+    """Local rows (k,), (k,) of face pairs of two groups that the sphere and box bounds allow.
+
+    Between two small groups (at most DENSE_GROUP_FACES faces each) only the faces near the
+    other group's box take part, and where they make few pairs all of these are tested.
+    Otherwise the size classes' k-d trees find the candidates, so a large static mesh costs
+    nothing per face away from the other group."""
+    if max(group_1.faces.size, group_2.faces.size) <= DENSE_GROUP_FACES:
+        near_1 = _rows_near_box(group_1, group_2.lower, group_2.upper, radius)
+        near_2 = _rows_near_box(group_2, group_1.lower, group_1.upper, radius)
+        if near_1.size * near_2.size <= DENSE_CANDIDATE_PAIRS:
+            return _all_pairs_within_bounds(group_1.bounds, group_2.bounds, near_1, near_2, radius)
     found_1, found_2 = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
     for rows_1, largest_1, tree_1 in group_1.classes():
         for rows_2, largest_2, tree_2 in group_2.classes():
@@ -277,6 +310,26 @@ def _within_conservative_bounds(bounds_1, bounds_2, local_1, local_2, radius):
     return (centre_gap <= sphere_reach) & (box_gap <= slack_radius)
 
 
+def _all_pairs_within_bounds(bounds_1, bounds_2, rows_1, rows_2, radius):
+    """The pairs of rows_1 × rows_2 that `_within_conservative_bounds` allows, found with the
+    same arithmetic on the whole (n1, n2) table at once instead of on gathered pairs."""
+    slack_radius = _slack(radius)
+    radii_1, radii_2 = bounds_1.radii[rows_1], bounds_2.radii[rows_2]
+    sphere_reach = slack_radius + (radii_1[:, None] + radii_2[None]) * (1.0 + BOUND_RELATIVE_SLACK)
+    centres_1, centres_2 = bounds_1.centres[rows_1], bounds_2.centres[rows_2]
+    lower_1, upper_1 = bounds_1.lower[rows_1], bounds_1.upper[rows_1]
+    lower_2, upper_2 = bounds_2.lower[rows_2], bounds_2.upper[rows_2]
+    squared = np.zeros((rows_1.size, rows_2.size))
+    box_gap = np.full((rows_1.size, rows_2.size), -np.inf)
+    for axis in range(3):
+        offset = centres_1[:, axis, None] - centres_2[None, :, axis]
+        squared += offset * offset
+        box_gap = np.maximum(box_gap, lower_1[:, axis, None] - upper_2[None, :, axis])
+        box_gap = np.maximum(box_gap, lower_2[None, :, axis] - upper_1[:, axis, None])
+    first, second = np.nonzero((np.sqrt(squared) <= sphere_reach) & (box_gap <= slack_radius))
+    return rows_1[first], rows_2[second]
+
+
 def _ordered_candidates(group_1, group_2, local_1, local_2):
     """The candidate pairs as global (lower face, higher face), with their triangles in that
     order: the exact distance is computed in it, as the brute force does."""
@@ -285,6 +338,27 @@ def _ordered_candidates(group_1, group_2, local_1, local_2):
     triangles_1, triangles_2 = group_1.triangles(local_1), group_2.triangles(local_2)
     low, high = np.where(swap, triangles_2, triangles_1), np.where(swap, triangles_1, triangles_2)
     return np.minimum(face_1, face_2), np.maximum(face_1, face_2), low, high
+
+
+def _separated(triangles_1, triangles_2, reach):
+    """(n,) True where the line between two triangles' centroids separates them by more
+    than `reach`.
+
+    Projected onto an axis, two triangles are at least as far apart as the gap between their
+    projections. The gap must exceed the reach by a slack larger than the rounding of the
+    projections (SEPARATION_SLACK of the largest coordinate), so no pair within reach is ever
+    dropped; the exact test decides all the others."""
+    if len(reach) == 0:
+        return np.zeros(0, bool)
+    points_1 = triangles_1.transpose(1, 2, 0)  # (3 vertices, 3 coordinates, n)
+    points_2 = triangles_2.transpose(1, 2, 0)
+    axis = (points_2[0] + points_2[1] + points_2[2]) - (points_1[0] + points_1[1] + points_1[2])
+    along_1 = [axis[0] * p[0] + axis[1] * p[1] + axis[2] * p[2] for p in points_1]
+    along_2 = [axis[0] * p[0] + axis[1] * p[1] + axis[2] * p[2] for p in points_2]
+    gap = np.minimum(np.minimum(*along_2[:2]), along_2[2]) - np.maximum(np.maximum(*along_1[:2]), along_1[2])
+    length = np.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)  # gap is |axis| × the gap along it
+    scale = max(np.abs(triangles_1).max(), np.abs(triangles_2).max())
+    return gap > (_slack(reach) + SEPARATION_SLACK * scale) * length
 
 
 class FacePairs(NamedTuple):
@@ -329,10 +403,13 @@ def face_pairs_between_groups(groups, group_static, radius, face_count, margins=
         face_low, face_high, low, high = _ordered_candidates(groups[first], groups[second], local_1, local_2)
         candidates.append((face_low, face_high, low, high, np.full(face_low.shape, reach)))
     face_low, face_high, low, high, reach = (np.concatenate(column) for column in zip(*candidates))
-    point_low, point_high, distance = closest_points_triangles(low, high)
-    keep = np.flatnonzero(distance <= reach)
-    face_i, face_j, first = _sorted_unique_pairs(face_low[keep], face_high[keep], max(face_count, 1))
-    kept = keep[first]
+    apart = np.flatnonzero(~_separated(low, high, reach))
+    point_low, point_high, distance = closest_points_triangles(low[apart], high[apart])
+    near = np.flatnonzero(distance <= reach[apart])
+    face_i, face_j, first = _sorted_unique_pairs(
+        face_low[apart[near]], face_high[apart[near]], max(face_count, 1)
+    )
+    kept = near[first]
     return FacePairs(face_i, face_j, point_low[kept], point_high[kept], distance[kept])
 
 

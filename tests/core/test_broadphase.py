@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from fignetctl.core import broadphase
 from fignetctl.core.broadphase import (
     FaceGroup,
     StaticFaceIndex,
@@ -68,6 +69,46 @@ def test_matches_brute_force_on_random_scenes(seed, radius):
     found = face_pairs_within_radius(triangles, face_object, radius, object_static)
     assert expected[0].size > 0
     assert_same_pairs(found, expected)
+
+
+@pytest.mark.parametrize("dense_pairs", [0, 1 << 40], ids=["k-d trees", "all near pairs"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_both_candidate_searches_give_the_brute_force_pairs(monkeypatch, seed, dense_pairs):
+    """Faces near each other's box are paired directly or through k-d trees (by their count):
+    each way alone gives exactly the brute-force pairs, with and without margins."""
+    monkeypatch.setattr(broadphase, "DENSE_CANDIDATE_PAIRS", dense_pairs)
+    monkeypatch.setattr(broadphase, "DENSE_GROUP_FACES", 1 << 40)
+    triangles, face_object, object_static = random_scene(seed)
+    margins = np.random.default_rng(seed).uniform(0.0, 0.3, object_static.shape[0]) * ~object_static
+    for radius, object_margins in ((0.15, None), (0.03, margins)):
+        groups = [
+            FaceGroup.from_triangles(np.flatnonzero(face_object == o), triangles[face_object == o])
+            for o in range(len(object_static))
+        ]
+        found = face_pairs_between_groups(groups, object_static, radius, len(triangles), object_margins)
+        expected = brute_force_face_pairs(triangles, face_object, radius, object_static, object_margins)
+        assert expected[0].size > 0
+        assert_same_pairs(found, expected)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e3])
+def test_the_separating_axis_drops_only_pairs_beyond_reach(offset):
+    """The cheap test before the exact one never drops a pair within reach (touching, crossing,
+    parallel at exactly the reach, far from the origin) and drops most pairs far beyond it."""
+    rng = np.random.default_rng(11)
+    first = rng.uniform(-0.1, 0.1, (4000, 3, 3))
+    second = rng.uniform(-0.1, 0.1, (4000, 3, 3)) + rng.uniform(-0.6, 0.6, (4000, 1, 3))
+    lower = np.array([[0.0, 0, 0], [0.3, 0, 0], [0, 0.3, 0]])
+    parallel = np.stack([lower, lower + [0, 0, 0.25]])  # 0.25 apart, the reach below
+    first = np.concatenate([first, parallel[:1], lower[None]]) + offset
+    piercing = np.array([[0.1, 0.1, -0.05], [0.1, 0.1, 0.05], [0.15, 0.1, 0.0]])
+    second = np.concatenate([second, parallel[1:], piercing[None]]) + offset
+    reach = np.full(len(first), 0.25)
+    _, _, distance = closest_points_triangles(first, second)
+    separated = broadphase._separated(first, second, reach)
+    assert not separated[distance <= reach].any()
+    assert distance[-2] == pytest.approx(0.25, abs=1e-9) and distance[-1] == 0.0
+    assert separated[distance > 2 * reach].mean() > 0.5
 
 
 @pytest.mark.parametrize("seed", [0, 1])

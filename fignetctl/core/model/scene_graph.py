@@ -138,7 +138,6 @@ class SceneGeometry:
     face_object : (F,) int64
     static : (O,) bool
     properties : (O, 3) float64, mass, friction, restitution
-    surface_edges : (S, 2) int64, each undirected mesh edge once (global vertex indices)
 
     Index arrays derived from these are computed once and kept (read-only), and
     `static_face_index` keeps each static object's broad-phase FaceGroup at its last pose, so
@@ -152,7 +151,6 @@ class SceneGeometry:
     face_object: np.ndarray
     static: np.ndarray
     properties: np.ndarray
-    surface_edges: np.ndarray
     static_face_index: StaticFaceIndex = dataclasses.field(
         default_factory=StaticFaceIndex, init=False, repr=False, compare=False
     )
@@ -191,6 +189,12 @@ class SceneGeometry:
             None if self.static[o] else _read_only(np.searchsorted(self.dynamic_vertices, self.faces[faces]))
             for o, faces in enumerate(self.object_faces)
         ]
+
+    @functools.cached_property
+    def surface_edges(self) -> np.ndarray:
+        """(S, 2) int64 each undirected mesh edge once (global vertex indices, smaller first);
+        made on first use (FIGNet's surface edges)."""
+        return _read_only(unique_undirected_edges(self.faces))
 
     @functools.cached_property
     def surface_edges_by_lower_vertex(self):
@@ -284,14 +288,16 @@ def scene_geometry(meshes, scales, static, properties) -> SceneGeometry:
         face_object=face_object,
         static=np.asarray(static, bool),
         properties=np.asarray(properties, np.float64).reshape(len(meshes), 3),
-        surface_edges=unique_undirected_edges(all_faces),
     )
 
 
 def unique_undirected_edges(faces):
     """faces (F, 3) -> (S, 2) each mesh edge once, smaller index first."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    return np.unique(np.sort(edges, axis=1), axis=0)
+    count = int(faces.max(initial=0)) + 1
+    keys = np.unique(edges.min(axis=1) * count + edges.max(axis=1))  # sorted as (low, high)
+    return np.stack([keys // count, keys % count], axis=1)
 
 
 @dataclasses.dataclass

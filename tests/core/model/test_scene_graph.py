@@ -11,6 +11,7 @@ from fignetctl.core.model.scene_graph import (
     face_face_features,
     graph_signature_for,
     scene_geometry,
+    unique_undirected_edges,
 )
 from fignetctl.core.transforms import (
     quat_from_rotation_vector,
@@ -293,3 +294,12 @@ def test_contact_velocity_of_the_positions_state_is_the_closest_points_rigid_mot
     closing = motion_at(receiver_point, receivers) - motion_at(sender_point, senders)
     assert np.abs(closing).max() > 0.02  # the turn moves the points by more than the tolerance
     np.testing.assert_allclose(edges.features.numpy()[:, 34:37], closing, atol=2e-6)
+
+
+def test_surface_edges_are_each_mesh_edge_once_as_a_brute_force_count_finds_them():
+    rng = np.random.default_rng(3)
+    faces = np.concatenate([rng.integers(0, 40, (300, 3)), [[7, 7, 7], [0, 1, 2]]])
+    expected = {tuple(sorted((int(a), int(b)))) for face in faces for a, b in zip(face, np.roll(face, -1))}
+    edges = unique_undirected_edges(faces)
+    assert [tuple(edge) for edge in edges.tolist()] == sorted(expected)
+    assert unique_undirected_edges(np.zeros((0, 3), np.int64)).shape == (0, 2)

@@ -17,6 +17,13 @@ PyBullet's contact manifolds (the contact points it accumulates over steps) carr
 not a restart from the model's information, but a reference for how much they matter. One
 frame is physics_hz / fps physics steps. Rollouts start from frames 0 and 1 of the ground
 truth; rollout frame 1 + k is step k, as in the model's rollouts.
+
+`evaluate_nudged` asks how chaotic the scenes are: PyBullet runs freely (no restarts) in one
+world from frame 1's recorded pose and velocity, with every dynamic object first moved by a
+nudge of a few millimetres or less in a random direction. A simulator whose state is off by
+that much at one frame ends at least about this far off later, however well it knows the
+physics; with no nudge it shows how closely PyBullet replays its own recording from the
+stored (float32) state.
 """
 
 from __future__ import annotations
@@ -171,6 +178,33 @@ def restarted_rollout(simulator, specs, trajectory, state: str, num_steps: int, 
     return np.stack(positions), np.stack(quaternions)
 
 
+def nudged_rollout(simulator, specs, trajectory, num_steps: int, nudge: float, rng):
+    """Poses of the dynamic objects (objects 1..O-1) run freely for `num_steps` frames in one
+    world from frame 1's recorded pose and velocity, each object's position first moved by
+    `nudge` metres in a direction drawn from `rng`.
+
+    returns : positions (2 + K, N, 3), quaternions (2 + K, N, 4) float64; frames 0-1 the truth's
+    (frame 1 as recorded, before the nudge)
+    """
+    positions = [np.asarray(trajectory.positions[f, 1:], np.float64) for f in (0, 1)]
+    quaternions = [np.asarray(trajectory.quaternions[f, 1:], np.float64) for f in (0, 1)]
+    directions = rng.normal(size=positions[1].shape)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    velocities = [
+        np.asarray(v[1, 1:], np.float64) for v in (trajectory.velocities, trajectory.angular_velocities)
+    ]
+    bodies = simulator.build_scene(specs)
+    simulator.set_object_states(
+        bodies, specs, positions[1] + float(nudge) * directions, quaternions[1], *velocities
+    )
+    for _ in range(num_steps):
+        simulator.step_frame()
+        position, quaternion, _, _ = simulator.object_states(bodies, specs)
+        positions.append(position)
+        quaternions.append(quaternion)
+    return np.stack(positions), np.stack(quaternions)
+
+
 class RestartedPyBullet:
     """PyBullet set up as make-dataset was for one trajectory file; rolls its scenes out restarted.
 
@@ -200,8 +234,27 @@ class RestartedPyBullet:
         moving = restarted_rollout(
             self.simulator, specs, trajectory, state, int(num_steps), self.data.dt, self.keep_world
         )
-        positions = np.repeat(trajectory.positions[1:2].astype(np.float64), 2 + int(num_steps), axis=0)
-        quaternions = np.repeat(trajectory.quaternions[1:2].astype(np.float64), 2 + int(num_steps), axis=0)
+        return self._with_static(trajectory, moving, int(num_steps))
+
+    def nudged(self, trajectory_id: str, num_steps: int, nudge: float, seed: int = 0) -> tuple:
+        """The free run of one trajectory from frame 1 nudged by `nudge` metres (nudged_rollout),
+        all objects (static ones keep frame 1's pose); the directions follow from `seed`.
+
+        returns : positions (2 + K, O, 3), quaternions (2 + K, O, 4) w x y z, float64
+        """
+        if not nudge >= 0.0:
+            raise FignetError(f"the nudge must be a distance >= 0 m, got {nudge}")
+        trajectory = self._trajectory(trajectory_id, "velocity")
+        specs = object_specs(trajectory, self.config, self.asset_index, self.simulator)
+        rng = np.random.default_rng([int(seed), list(self.data.trajectories).index(trajectory_id)])
+        moving = nudged_rollout(self.simulator, specs, trajectory, int(num_steps), nudge, rng)
+        return self._with_static(trajectory, moving, int(num_steps))
+
+    def _with_static(self, trajectory, moving, num_steps: int) -> tuple:
+        """The dynamic objects' rolled-out poses with the static ones at frame 1's (frames 0-1
+        the truth's)."""
+        positions = np.repeat(trajectory.positions[1:2].astype(np.float64), 2 + num_steps, axis=0)
+        quaternions = np.repeat(trajectory.quaternions[1:2].astype(np.float64), 2 + num_steps, axis=0)
         positions[:2], quaternions[:2] = trajectory.positions[:2], trajectory.quaternions[:2]
         positions[:, 1:], quaternions[:, 1:] = moving
         return positions, quaternions
@@ -291,15 +344,7 @@ def evaluate_ceilings(
         dict per horizon: steps, seconds, translation_rmse_m, rotation_mean_deg, rotation_rms_deg,
         objects]}}
     """
-    ids = list(data.trajectories)[:num_trajectories]
-    if not ids:
-        raise FignetError("no trajectories to evaluate")
-    shortest = min(data.trajectories[key].num_frames for key in ids)
-    horizons = horizon_steps(data.dt, shortest) if horizons is None else sorted({int(h) for h in horizons})
-    if not horizons or horizons[0] < 1 or horizons[-1] > shortest - 2:
-        raise FignetError(
-            f"horizons must lie in 1..{shortest - 2} steps for these trajectories, got {horizons}"
-        )
+    ids, horizons = _trajectories_and_horizons(data, num_trajectories, horizons)
     with RestartedPyBullet(data, assets, keep_world) as physics:
         errors = {state: collect_errors(physics, ids, state, horizons) for state in states}
     return {
@@ -312,6 +357,56 @@ def evaluate_ceilings(
             state: [_horizon_row(h, data.dt, *errors[state][h]) for h in horizons] for state in states
         },
     }
+
+
+def evaluate_nudged(
+    data: TrajectoryFile, horizons=None, num_trajectories=None, nudges=(0.0, 1e-4, 1e-3), seed=0, assets=None
+) -> dict:
+    """The free runs of `nudged_rollout` over the first `num_trajectories` trajectories, one per
+    nudge (metres), against the recording.
+
+    returns : {"trajectories", "objects", "dt", "horizons", "seed", "nudges": {"<nudge> m": [one
+        dict per horizon: steps, seconds, translation_rmse_m, rotation_mean_deg, rotation_rms_deg,
+        objects]}}
+    """
+    ids, horizons = _trajectories_and_horizons(data, num_trajectories, horizons)
+    rows = {}
+    with RestartedPyBullet(data, assets) as physics:
+        for nudge in nudges:
+            errors = {h: ([], []) for h in horizons}
+            for key in ids:
+                positions, quaternions = physics.nudged(key, horizons[-1], nudge, seed)
+                for h in horizons:
+                    translation, rotation = horizon_errors(positions, quaternions, data.trajectories[key], h)
+                    errors[h][0].append(translation)
+                    errors[h][1].append(rotation)
+            rows[f"{nudge:g} m"] = [
+                _horizon_row(h, data.dt, np.concatenate(errors[h][0]), np.concatenate(errors[h][1]))
+                for h in horizons
+            ]
+    return {
+        "trajectories": len(ids),
+        "objects": int(sum((~data.trajectories[key].static).sum() for key in ids)),
+        "dt": float(data.dt),
+        "horizons": horizons,
+        "seed": int(seed),
+        "nudges": rows,
+    }
+
+
+def _trajectories_and_horizons(data: TrajectoryFile, num_trajectories, horizons) -> tuple:
+    """The first `num_trajectories` trajectory ids and the sorted horizons (default:
+    horizon_steps of the shortest of them), or a clear error."""
+    ids = list(data.trajectories)[:num_trajectories]
+    if not ids:
+        raise FignetError("no trajectories to evaluate")
+    shortest = min(data.trajectories[key].num_frames for key in ids)
+    horizons = horizon_steps(data.dt, shortest) if horizons is None else sorted({int(h) for h in horizons})
+    if not horizons or horizons[0] < 1 or horizons[-1] > shortest - 2:
+        raise FignetError(
+            f"horizons must lie in 1..{shortest - 2} steps for these trajectories, got {horizons}"
+        )
+    return ids, horizons
 
 
 def collect_errors(physics: RestartedPyBullet, ids, state: str, horizons) -> dict:

@@ -233,6 +233,49 @@ def test_evaluate_measures_the_ceilings_beside_the_model(tosses, shapes):
     assert len(report["curves"]["ceiling_velocity"]["step"]) == len(report["curves"]["model"]["step"])
 
 
+# ----------------------------------------------------------------------------- nudged free runs
+
+
+def test_a_nudged_free_fall_is_the_recording_moved_by_the_nudge(spinning_fall, shapes):
+    """In free fall nothing depends on where the body is: the free run from frame 1 moved by a
+    nudge stays that far from the recording at every frame, and without one replays it."""
+    data, spun = spinning_fall
+    truth = data.trajectories["00000"]
+    steps = truth.num_frames - 2
+    with ceilings.RestartedPyBullet(data, [shapes[1]]) as physics:
+        for nudge in (0.0, 1e-3):
+            positions, quaternions = physics.nudged("00000", steps, nudge, seed=1)
+            offsets = positions[2:, 1] - truth.positions[2:, 1]
+            np.testing.assert_allclose(np.linalg.norm(offsets, axis=1), nudge, atol=2e-5)  # the fall's
+            np.testing.assert_allclose(offsets, offsets[:1].repeat(len(offsets), 0), atol=2e-5)  # float32
+            assert quat_angle_deg(spun[1:], quaternions[2:, 1]).max() < 2e-4
+            np.testing.assert_array_equal(positions[:2], truth.positions[:2])
+
+
+def test_nudged_runs_grow_with_the_nudge_and_start_at_it(tosses, shapes):
+    result = ceilings.evaluate_nudged(tosses, [1, 15], nudges=(0.0, 1e-3, 1e-2), assets=shapes)
+    objects = sum(t.num_objects - 1 for t in tosses.trajectories.values())
+    assert result["objects"] == objects and result["horizons"] == [1, 15]
+    rows = result["nudges"]
+    assert list(rows) == ["0 m", "0.001 m", "0.01 m"]
+    assert rows["0 m"][0]["translation_rmse_m"] < FLOAT32_POSITION_TOLERANCE * 4
+    for nudge, name in ((1e-3, "0.001 m"), (1e-2, "0.01 m")):
+        assert rows[name][0]["translation_rmse_m"] == pytest.approx(nudge, rel=0.05)  # one frame on
+    assert rows["0.01 m"][1]["translation_rmse_m"] > rows["0 m"][1]["translation_rmse_m"]
+    from tests.bench import load_benchmark
+
+    table = load_benchmark("physics_ceilings").markdown_table(result, "nudges", "nudge").splitlines()
+    assert table[0].startswith("| nudge | steps |") and len(table) == 2 + 3 * 2
+    assert table[2].startswith("| 0 m | 1 |") and table[-1].startswith("| 0.01 m | 15 |")
+    again = ceilings.evaluate_nudged(tosses, [15], nudges=(1e-3,), assets=shapes)
+    assert again["nudges"]["0.001 m"][0] == rows["0.001 m"][1]  # the seed fixes the directions
+    with (
+        ceilings.RestartedPyBullet(tosses, shapes) as physics,
+        pytest.raises(FignetError, match="nudge must be a distance"),
+    ):
+        physics.nudged("00000", 1, -1e-3)
+
+
 # ----------------------------------------------------------------------------- clear errors
 
 

@@ -28,6 +28,50 @@ within this of PyBullet's restarted every frame from the same state on the same 
 (what physics itself drifts there); 0.1 m is about a twentieth of a movi-b object's largest side."""
 
 
+CUBE_CASES = {
+    "dropped": (1, 0, ((-0.5, -0.5, 1.0), (0.5, 0.5, 2.0))),  # falls, bounces, slides, comes to rest
+    "tossed": (2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5))),  # two tossed at each other, collide at frame 12
+}
+"""The seconds-long learnability cases: (cubes, seed, spawn region) of `cube_trajectories`."""
+
+
+def cube_asset():
+    """A unit cube as a generator shape (its own single convex part)."""
+    import trimesh
+
+    from fignetctl.core.shapes import ShapeAsset
+
+    box = trimesh.creation.box((1.0, 1.0, 1.0))
+    vertices = np.asarray(box.vertices, np.float32)
+    return ShapeAsset(
+        name="cube",
+        vertices=vertices,
+        faces=np.asarray(box.faces, np.int32),
+        convex_parts=(vertices,),
+        source="fignetctl.core.model.learnability",
+    )
+
+
+def cube_trajectories(count, seed, spawn_region):
+    """One 1 s trajectory of `count` rubber unit cubes tossed in `spawn_region` (PyBullet, MOVi-B's
+    settings, 30 fps), as a TrajectoryFile that carries its generator config as make-dataset's
+    do (so `ceilings` can run it again)."""
+    from fignetctl.core import movi
+
+    asset = cube_asset()
+    config = movi.movi_config(
+        "movi-b",
+        duration=1.0,
+        num_objects=(count, count),
+        spawn_region=spawn_region,
+        materials=(movi.RUBBER,),
+        scale_range=(1.0, 1.0),
+    )
+    results = list(movi.generate([asset], config, seed, range(1)))
+    attrs = {"source": "fignetctl make-dataset", "config": config.to_json()}
+    return movi.dataset_file(results, [asset], config, 1, attrs)
+
+
 def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
     """Noise-free (graph, targets) of frames t of the scenes: all frames with t−1 and t+1
     inside the trajectory, or `frames_per_scene` drawn from them."""

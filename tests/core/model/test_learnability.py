@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core import movi
 from fignetctl.core.model.learnability import (
+    CUBE_CASES,
     FVU_BAR,
     TRACKING_TOLERANCE_M,
     bar,
+    cube_trajectories,
     fraction_unexplained,
     one_step_examples,
     overfit,
@@ -19,7 +20,6 @@ from fignetctl.core.model.learnability import (
 )
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import simulator_config_for
-from fignetctl.core.shapes import ShapeAsset
 
 CONFIG = simulator_config_for("fignet-star", "tiny", 0.2, state="velocities", static_receivers=False)
 # measured with 800 steps: 0.087 (one box), 0.040 (two boxes); an untrained model or a broken
@@ -27,40 +27,12 @@ CONFIG = simulator_config_for("fignet-star", "tiny", 0.2, state="velocities", st
 MOST_UNEXPLAINED = 0.2
 
 
-def cube_scene(count, seed, spawn_region):
-    """One 1 s trajectory of `count` rubber unit cubes tossed in `spawn_region`, as a TrajectoryFile."""
-    import trimesh
-
-    box = trimesh.creation.box((1.0, 1.0, 1.0))
-    asset = ShapeAsset(
-        name="cube",
-        vertices=np.asarray(box.vertices, np.float32),
-        faces=np.asarray(box.faces, np.int32),
-        convex_parts=(np.asarray(box.vertices, np.float32),),
-        source="test",
-    )
-    config = movi.movi_config(
-        "movi-b",
-        duration=1.0,
-        num_objects=(count, count),
-        spawn_region=spawn_region,
-        materials=(movi.RUBBER,),
-        scale_range=(1.0, 1.0),
-    )
-    return movi.dataset_file(list(movi.generate([asset], config, seed, range(1))), [asset], config, 1, {})
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "count, seed, region",
-    [
-        (1, 0, ((-0.5, -0.5, 1.0), (0.5, 0.5, 2.0))),  # dropped: falls, bounces, slides, comes to rest
-        (2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5))),  # tossed at each other: they collide at frame 12
-    ],
-)
-def test_a_model_overfits_a_few_boxes_to_most_of_the_one_step_variance(count, seed, region):
+@pytest.mark.parametrize("case", list(CUBE_CASES))
+def test_a_model_overfits_a_few_boxes_to_most_of_the_one_step_variance(case):
     torch.set_num_threads(1)
-    data = cube_scene(count, seed, region)
+    count, seed, region = CUBE_CASES[case]
+    data = cube_trajectories(count, seed, region)
     trajectory = next(iter(data.trajectories.values()))
     assert trajectory.velocities is not None and np.all(trajectory.positions[:, 1:, 2] < 2.5)
     if count == 2:
@@ -95,7 +67,7 @@ class ReplaySimulator:
 
 
 def test_the_rigid_fraction_unexplained_is_zero_for_the_recorded_motion_and_not_for_drifting():
-    data = cube_scene(2, 3, ((-1.5, -1.5, 0.6), (1.5, 1.5, 1.5)))
+    data = cube_trajectories(*CUBE_CASES["tossed"])
     scenes = scenes_from_data(data, CONFIG, TRAINING_STATIC_REACH)
     exact = rigid_fraction_unexplained(ReplaySimulator(scenes[0]), scenes)
     assert exact["all"] < 1e-9 and len(exact["per_component"]) == 6

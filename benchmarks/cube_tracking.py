@@ -75,6 +75,8 @@ def measure(case: str, args) -> dict:
         learning_rate=tuple(args.learning_rate),
         noise=(args.noise, args.noise),
         seed=args.seed,
+        pushforward=args.pushforward,
+        calm_weight=args.calm_weight,
     )
     seconds = time.perf_counter() - started
     simulator = trainer.simulator.eval()
@@ -127,6 +129,12 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=4000)
     parser.add_argument("--learning-rate", type=float, nargs=2, default=[3e-3, 3e-4])
     parser.add_argument("--noise", type=float, default=0.0, help="training jitter (m and rad); the suite's 0")
+    parser.add_argument(
+        "--pushforward", type=int, default=0, help="examples of each 4 from the model's own step"
+    )
+    parser.add_argument(
+        "--calm-weight", type=float, default=0.0, help="extra loss weight of free-fall and resting vertices"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", nargs="+", choices=list(CUBE_CASES), default=list(CUBE_CASES))
     parser.add_argument("-o", "--output", default=None, help="write the figures as json here")
@@ -146,6 +154,8 @@ def main() -> None:
                 "steps": args.steps,
                 "learning_rate": args.learning_rate,
                 "noise": args.noise,
+                "pushforward": args.pushforward,
+                "calm_weight": args.calm_weight,
                 "horizons": list(HORIZONS),
                 "cases": results,
             },

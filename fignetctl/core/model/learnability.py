@@ -287,11 +287,13 @@ def overfit(
     noise=(0.0, 0.0),
     frame_sampling="uniform",
     gravity=(0.0, 0.0, -10.0),
+    **settings,
 ):
     """A Trainer that has fitted `scenes` for `steps`, or for `until_step` of a `steps`-long
     schedule (continue it with `trainer.run(until_step=...)`); without noise (the learnability
     test) unless `noise` gives training's per-object jitter (translation m, rotation rad);
-    `gravity` (m/s²) is the scenes' (for `frame_sampling` 'motion')."""
+    `gravity` (m/s²) is the scenes' (for `frame_sampling` 'motion'); `settings`: other
+    TrainingSettings fields (`pushforward`, `calm_weight`, ...)."""
     from fignetctl.core.model.simulator import LearnedSimulator
     from fignetctl.core.model.training import Trainer, TrainingSettings
 
@@ -308,6 +310,7 @@ def overfit(
         checkpoint_every=10**9,
         seed=seed,
         frame_sampling=frame_sampling,
+        **settings,
     )
     with torch.random.fork_rng():
         torch.manual_seed(seed)

@@ -21,7 +21,7 @@ truth; rollout frame 1 + k is step k, as in the model's rollouts.
 `evaluate_nudged` asks how chaotic the scenes are: PyBullet runs freely (no restarts) in one
 world from frame 1's recorded pose and velocity, with every dynamic object first moved by a
 nudge of a few millimetres or less in a random direction. A simulator whose state is off by
-that much at one frame ends at least about this far off later, however well it knows the
+that much at one frame typically ends about this far off later, however well it knows the
 physics; with no nudge it shows how closely PyBullet replays its own recording from the
 stored (float32) state.
 """
@@ -346,7 +346,12 @@ def evaluate_ceilings(
     """
     ids, horizons = _trajectories_and_horizons(data, num_trajectories, horizons)
     with RestartedPyBullet(data, assets, keep_world) as physics:
-        errors = {state: collect_errors(physics, ids, state, horizons) for state in states}
+        errors = {
+            state: collect_errors(
+                physics, ids, horizons, lambda key, steps, state=state: physics.rollout(key, state, steps)
+            )
+            for state in states
+        }
     return {
         "trajectories": len(ids),
         "objects": int(sum((~data.trajectories[key].static).sum() for key in ids)),
@@ -373,17 +378,13 @@ def evaluate_nudged(
     rows = {}
     with RestartedPyBullet(data, assets) as physics:
         for nudge in nudges:
-            errors = {h: ([], []) for h in horizons}
-            for key in ids:
-                positions, quaternions = physics.nudged(key, horizons[-1], nudge, seed)
-                for h in horizons:
-                    translation, rotation = horizon_errors(positions, quaternions, data.trajectories[key], h)
-                    errors[h][0].append(translation)
-                    errors[h][1].append(rotation)
-            rows[f"{nudge:g} m"] = [
-                _horizon_row(h, data.dt, np.concatenate(errors[h][0]), np.concatenate(errors[h][1]))
-                for h in horizons
-            ]
+            errors = collect_errors(
+                physics,
+                ids,
+                horizons,
+                lambda key, steps, nudge=nudge: physics.nudged(key, steps, nudge, seed),
+            )
+            rows[f"{nudge:g} m"] = [_horizon_row(h, data.dt, *errors[h]) for h in horizons]
     return {
         "trajectories": len(ids),
         "objects": int(sum((~data.trajectories[key].static).sum() for key in ids)),
@@ -409,12 +410,12 @@ def _trajectories_and_horizons(data: TrajectoryFile, num_trajectories, horizons)
     return ids, horizons
 
 
-def collect_errors(physics: RestartedPyBullet, ids, state: str, horizons) -> dict:
+def collect_errors(physics: RestartedPyBullet, ids, horizons, run) -> dict:
     """horizon -> (translation errors (N,), rotation errors (N,)) over the dynamic objects of
-    the trajectories `ids`, rolled out once each to the longest horizon."""
+    the trajectories `ids`, each rolled out once to the longest horizon by `run(id, steps)`."""
     errors = {h: ([], []) for h in horizons}
     for key in ids:
-        positions, quaternions = physics.rollout(key, state, horizons[-1])
+        positions, quaternions = run(key, horizons[-1])
         for h in horizons:
             translation, rotation = horizon_errors(positions, quaternions, physics.data.trajectories[key], h)
             errors[h][0].append(translation)

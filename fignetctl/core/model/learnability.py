@@ -53,9 +53,9 @@ def cube_asset():
 
 
 def cube_trajectories(count, seed, spawn_region):
-    """One 1 s trajectory of `count` rubber unit cubes tossed in `spawn_region` (PyBullet, MOVi-B's
-    settings, 30 fps), as a TrajectoryFile that carries its generator config as make-dataset's
-    do (so `ceilings` can run it again)."""
+    """One 1 s trajectory of `count` rubber unit cubes tossed in `spawn_region` (make-dataset's
+    generator: PyBullet, MOVi-B's settings, 30 fps), as a TrajectoryFile that carries its
+    generator config as make-dataset's files do (so `ceilings` can run it again)."""
     from fignetctl.core import movi
 
     asset = cube_asset()
@@ -68,7 +68,7 @@ def cube_trajectories(count, seed, spawn_region):
         scale_range=(1.0, 1.0),
     )
     results = list(movi.generate([asset], config, seed, range(1)))
-    attrs = {"source": "fignetctl make-dataset", "config": config.to_json()}
+    attrs = {"source": "fignetctl.core.model.learnability.cube_trajectories", "config": config.to_json()}
     return movi.dataset_file(results, [asset], config, 1, attrs)
 
 

@@ -35,12 +35,17 @@ from fignetctl.core.model.learnability import (
     one_step_examples,
     overfit,
 )
+from fignetctl.core.model.network import PRESETS
 from fignetctl.core.model.rollout import rollout
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import simulator_config_for
 
 HORIZONS = (1, 5, 10, 15, 20, 28)
-CONFIG = simulator_config_for("fignet-star", "tiny", 0.2, state="velocities", static_receivers=False)
+
+
+def config_of(size: str):
+    """The velocity-state FIGNet* of a network size (the suite's: 'tiny')."""
+    return simulator_config_for("fignet-star", size, 0.2, state="velocities", static_receivers=False)
 
 
 def model_rows(simulator, data, scene) -> list:
@@ -65,10 +70,11 @@ def measure(case: str, args) -> dict:
     """Train on one case, then the model's and physics' rows for it."""
     count, seed, region = CUBE_CASES[case]
     data = cube_trajectories(count, seed, region)
-    scenes = scenes_from_data(data, CONFIG, TRAINING_STATIC_REACH)
+    config = config_of(args.size)
+    scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     started = time.perf_counter()
     trainer = overfit(
-        CONFIG,
+        config,
         scenes,
         steps=args.steps,
         batch_size=4,
@@ -135,6 +141,9 @@ def main() -> None:
     parser.add_argument(
         "--calm-weight", type=float, default=0.0, help="extra loss weight of free-fall and resting vertices"
     )
+    parser.add_argument(
+        "--size", choices=list(PRESETS), default="tiny", help="network size (the suite's: tiny)"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", nargs="+", choices=list(CUBE_CASES), default=list(CUBE_CASES))
     parser.add_argument("-o", "--output", default=None, help="write the figures as json here")
@@ -153,6 +162,7 @@ def main() -> None:
                 "command": " ".join(["python", *sys.argv]),
                 "steps": args.steps,
                 "learning_rate": args.learning_rate,
+                "size": args.size,
                 "noise": args.noise,
                 "pushforward": args.pushforward,
                 "calm_weight": args.calm_weight,

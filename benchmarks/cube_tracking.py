@@ -22,11 +22,10 @@ import argparse
 import sys
 import time
 
-import numpy as np
 import torch
 
 from fignetctl.core.atomic import write_json
-from fignetctl.core.ceilings import evaluate_ceilings, evaluate_nudged, horizon_errors
+from fignetctl.core.ceilings import evaluate_ceilings, evaluate_nudged, horizon_errors, horizon_row
 from fignetctl.core.model.learnability import (
     CUBE_CASES,
     cube_asset,
@@ -53,17 +52,10 @@ def model_rows(simulator, data, scene) -> list:
     trajectory = next(iter(data.trajectories.values()))
     with torch.no_grad():
         positions, quaternions = rollout(simulator, scene, HORIZONS[-1])
-    rows = []
-    for steps in HORIZONS:
-        translation, rotation = horizon_errors(positions, quaternions, trajectory, steps)
-        rows.append(
-            {
-                "steps": steps,
-                "translation_rmse_m": float(np.sqrt(np.mean(translation**2))),
-                "rotation_mean_deg": float(np.mean(rotation)),
-            }
-        )
-    return rows
+    return [
+        horizon_row(steps, data.dt, *horizon_errors(positions, quaternions, trajectory, steps))
+        for steps in HORIZONS
+    ]
 
 
 def measure(case: str, args) -> dict:

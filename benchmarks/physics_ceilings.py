@@ -71,6 +71,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="of the nudges' directions")
     parser.add_argument("-o", "--output", required=True, help="json to write")
     args = parser.parse_args()
+    if not args.worlds and not args.nudges:
+        sys.exit("nothing to measure: give --worlds, or --nudges")
+    if args.nudges and min(args.nudges) < 0:
+        sys.exit(f"--nudges: distances >= 0 m, got {args.nudges}")
     data = read_trajectories(args.data)
     keys = list(data.trajectories)[: args.trajectories]
     shortest = min(data.trajectories[key].num_frames for key in keys)
@@ -93,8 +97,6 @@ def main() -> None:
             flush=True,
         )
     if args.nudges:
-        if min(args.nudges) < 0:
-            sys.exit(f"--nudges: distances >= 0 m, got {args.nudges}")
         started = time.perf_counter()
         result = evaluate_nudged(data, horizons, args.trajectories, args.nudges, args.seed)
         result["seconds"] = round(time.perf_counter() - started, 1)
@@ -104,8 +106,6 @@ def main() -> None:
             f"objects, {result['seconds']} s\n\n{markdown_table(result, 'nudges', 'nudge')}",
             flush=True,
         )
-    if not args.worlds and not args.nudges:
-        sys.exit("nothing to measure: give --worlds, or --nudges")
     write_json(args.output, output)
     print(args.output)
 

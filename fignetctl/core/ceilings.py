@@ -353,14 +353,9 @@ def evaluate_ceilings(
             for state in states
         }
     return {
-        "trajectories": len(ids),
-        "objects": int(sum((~data.trajectories[key].static).sum() for key in ids)),
-        "dt": float(data.dt),
-        "horizons": horizons,
+        **_run_summary(data, ids, horizons),
         "keep_world": bool(keep_world),
-        "states": {
-            state: [_horizon_row(h, data.dt, *errors[state][h]) for h in horizons] for state in states
-        },
+        "states": {state: [horizon_row(h, data.dt, *errors[state][h]) for h in horizons] for state in states},
     }
 
 
@@ -384,14 +379,22 @@ def evaluate_nudged(
                 horizons,
                 lambda key, steps, nudge=nudge: physics.nudged(key, steps, nudge, seed),
             )
-            rows[f"{nudge:g} m"] = [_horizon_row(h, data.dt, *errors[h]) for h in horizons]
+            rows[f"{nudge:g} m"] = [horizon_row(h, data.dt, *errors[h]) for h in horizons]
+    return {
+        **_run_summary(data, ids, horizons),
+        "seed": int(seed),
+        "nudges": rows,
+    }
+
+
+def _run_summary(data: TrajectoryFile, ids, horizons) -> dict:
+    """What every evaluation here reports first: the trajectories, their dynamic objects, dt and
+    the horizons."""
     return {
         "trajectories": len(ids),
         "objects": int(sum((~data.trajectories[key].static).sum() for key in ids)),
         "dt": float(data.dt),
         "horizons": horizons,
-        "seed": int(seed),
-        "nudges": rows,
     }
 
 
@@ -423,5 +426,6 @@ def collect_errors(physics: RestartedPyBullet, ids, horizons, run) -> dict:
     return {h: (np.concatenate(t), np.concatenate(r)) for h, (t, r) in errors.items()}
 
 
-def _horizon_row(steps: int, dt: float, translation, rotation) -> dict:
+def horizon_row(steps: int, dt: float, translation, rotation) -> dict:
+    """One horizon's row: steps, seconds and `error_summary` of the objects' errors there."""
     return {"steps": steps, "seconds": round(steps * dt, 4), **error_summary(translation, rotation)}

@@ -29,10 +29,20 @@ def main() -> None:
     parser.add_argument("data", nargs="+", help="trajectory files")
     parser.add_argument("-n", "--trajectories", type=int, default=6, help="the first n of each file")
     parser.add_argument("--frames", type=int, default=20, help="frames per trajectory")
+    parser.add_argument(
+        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+    )
     parser.add_argument("-o", "--output", default=None, help="json to write")
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    results = {"model": args.model, "trajectories": args.trajectories, "frames": args.frames, "files": {}}
+    simulator.rotations = args.rotations
+    results = {
+        "model": args.model,
+        "trajectories": args.trajectories,
+        "frames": args.frames,
+        "rotations": args.rotations,
+        "files": {},
+    }
     for path in args.data:
         with h5py.File(path, "r") as f:  # the ids alone, without reading a large file twice
             keys = sorted(f["trajectories"])[: args.trajectories]

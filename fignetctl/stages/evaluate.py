@@ -26,6 +26,12 @@ class Settings:
     ceilings: bool = setting(
         False, "Also evaluate PyBullet restarted every frame from a model's inputs (make-dataset DATA only)."
     )
+    rotations: int = setting(
+        1,
+        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).",
+        low=1,
+        high=64,
+    )
     device: str = setting(
         "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
     )
@@ -43,10 +49,13 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
 
     check(settings)
     simulator = load_model(model, resolve_device(settings.device))
-    with (progress or no_progress)(unit="trajectory", desc="evaluate") as bar:
+    simulator.rotations = settings.rotations
+    trajectories = read_trajectories(data)
+    total = len(list(trajectories.trajectories)[: settings.max_trajectories])
+    with (progress or no_progress)(total=total, unit="trajectory", desc="evaluate") as bar:
         metrics = evaluate_trajectories(
             simulator,
-            read_trajectories(data),
+            trajectories,
             settings.max_trajectories,
             on_scene=lambda _: bar.update(1),
             sleep=settings.sleep,

@@ -141,6 +141,7 @@ def rollout_result(
         "source": "fignetctl rollout",
         "model_config": simulator.config.to_json(),
         "sim_scale": float(sim_scale),
+        "rotations": simulator.rotations,
     }
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
 
@@ -189,6 +190,7 @@ def evaluate_trajectories(
         "free_flight": bool(free_flight),
         "keep_out": bool(keep_out),
         "ceilings": bool(ceilings),
+        "rotations": simulator.rotations,
         **results,
     }
 

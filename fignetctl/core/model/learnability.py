@@ -94,7 +94,8 @@ def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
 @torch.no_grad()
 def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
     """{"all": FVU over every component, "position": over a_x, "velocity": over a_u (velocity
-    state only), "per_component": [...]} of a model on one_step_examples."""
+    state only), "per_component": [...]} of a model on one_step_examples (averaged over its
+    `rotations`)."""
     from fignetctl.core.model.training import dynamic_rows
 
     predictions, targets = [], []
@@ -102,7 +103,7 @@ def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
         chunk = examples[start : start + batch_size]
         graph = batch_graphs([scene_graph.graph for scene_graph, _ in chunk])
         rows = dynamic_rows([scene_graph for scene_graph, _ in chunk])
-        predictions.append(simulator(graph)[rows])
+        predictions.append(simulator.normalized_targets(simulator.network_acceleration(graph), False)[rows])
         targets.append(simulator.normalized_targets(torch.cat([t for _, t in chunk]), accumulate=False))
     prediction, target = torch.cat(predictions).double(), torch.cat(targets).double()
     residual = ((prediction - target) ** 2).sum(0)

@@ -116,6 +116,45 @@ class GraphConfig:
     geometry alone (model files before this field)."""
 
 
+# Where each feature block holds world-frame 3-vectors (the first column of each): a rotation
+# of the whole scene rotates these and leaves every other column (norms, rest-shape vectors,
+# materials, flags) as it is.
+NODE_VECTOR_COLUMNS = (0, 3)  # velocity, kinematic displacement
+EDGE_VECTOR_COLUMNS = {
+    MESH_TO_OBJECT: (0,),  # sender − receiver now; the rest-shape offset is in the object frame
+    OBJECT_TO_MESH: (0,),
+    NODE_NODE: (0,),
+    # closest points, both triangles' vertex offsets, both normals, and the contact velocity
+    FACE_FACE: (0, 4, 7, 10, 16, 19, 22, 28, 31, FACE_FACE_FEATURE_SIZE),
+}
+
+
+def rotated_graph(graph: MultiGraph, rotation: torch.Tensor) -> MultiGraph:
+    """The graph of the same scene rotated by `rotation` (3, 3): its world-frame vectors rotated,
+    connectivity and everything else kept. Equal to the graph built from the rotated poses,
+    except that equidistant vertices of a face keep the order their unrotated coordinates gave
+    them (`canonical_vertex_order`)."""
+    edge_sets = {
+        name: EdgeSet(
+            name,
+            _rotated_columns(edge_set.features, EDGE_VECTOR_COLUMNS[name], rotation),
+            edge_set.senders,
+            edge_set.receivers,
+        )
+        for name, edge_set in graph.edge_sets.items()
+    }
+    return MultiGraph(_rotated_columns(graph.node_features, NODE_VECTOR_COLUMNS, rotation), edge_sets)
+
+
+def _rotated_columns(features, starts, rotation):
+    rotated = features.clone()
+    rotation = rotation.to(features)
+    for start in starts:
+        if start + 3 <= features.shape[1]:
+            rotated[:, start : start + 3] = features[:, start : start + 3] @ rotation.T
+    return rotated
+
+
 def graph_signature_for(config: GraphConfig) -> GraphSignature:
     """The feature widths every graph built with `config` has."""
     sizes = {

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from fignetctl.core.model.graph import EdgeSet, MultiGraph
+from fignetctl.core.model.graph import EdgeSet, MultiGraph, batch_graphs
 from fignetctl.core.model.network import PRESETS as NETWORK_PRESETS
 from fignetctl.core.model.network import EncodeProcessDecode, NetworkConfig
 from fignetctl.core.model.normalizer import Normalizer
@@ -47,6 +47,7 @@ from fignetctl.core.model.scene_graph import (
     GraphConfig,
     build_scene_graph,
     graph_signature_for,
+    rotated_graph,
 )
 from fignetctl.core.shape_matching import fit_rigid_transform
 from fignetctl.core.transforms import (
@@ -158,6 +159,7 @@ class LearnedSimulator(nn.Module):
         self.acceleration_normalizer = Normalizer(config.network.output_size, std_epsilon=STD_EPSILON)
         self.source_sha256 = None  # the SHA-256 of the model file it was loaded from, if any
         self.trained_properties = None  # ranges of the training data's properties (trained_ranges.py)
+        self.rotations = 1  # predictions averaged over this many turns about gravity (network_acceleration)
 
     def with_graph_config(self, **changes) -> LearnedSimulator:
         """A copy with the same weights and normalizers, on the same device and in the same mode,
@@ -172,6 +174,7 @@ class LearnedSimulator(nn.Module):
                 f"graph settings {changes} change the network's inputs; train a model for them"
             ) from None
         other.trained_properties, other.source_sha256 = self.trained_properties, self.source_sha256
+        other.rotations = self.rotations
         return other.to(next(self.parameters()).device).train(self.training)
 
     def preprocess(self, graph: MultiGraph, accumulate: bool) -> MultiGraph:
@@ -202,6 +205,29 @@ class LearnedSimulator(nn.Module):
         the history: normalized `acceleration_targets`, a (n, output_size) float32 tensor."""
         targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
         return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
+
+    def network_acceleration(self, graph: MultiGraph) -> torch.Tensor:
+        """Raw graph -> (N, output_size) accelerations, denormalized.
+
+        With `rotations` = K > 1, the network is run on the scene turned by 2πk/K (k < K) about
+        the gravity axis, each answer turned back, and the K answers averaged: physics does not
+        change when a scene turns about gravity, and the average is exactly equivariant to those
+        K turns, where the network alone is only as equivariant as its training made it. Costs
+        K network evaluations (one batch) per step; the graph is built once.
+        """
+        if self.rotations == 1:
+            return self.acceleration_normalizer.inverse(self(graph))
+        if not (isinstance(self.rotations, int) and self.rotations > 1):
+            raise FignetError(
+                f"rotations must be a whole number of turns, at least 1, not {self.rotations!r}"
+            )
+        turns = rotations_about_gravity(self.rotations, self.config.gravity).to(graph.node_features)
+        answers = self.acceleration_normalizer.inverse(
+            self(batch_graphs([rotated_graph(graph, turn) for turn in turns]))
+        )
+        answers = answers.reshape(len(turns), graph.num_nodes, -1, 3)
+        turned_back = torch.einsum("kij,knvi->knvj", turns, answers)  # R_kᵀ a for each vector a
+        return turned_back.mean(0).reshape(graph.num_nodes, -1)
 
     def normalized_targets(self, targets: torch.Tensor, accumulate: bool) -> torch.Tensor:
         """(n, output_size) raw `acceleration_targets` -> normalized (statistics updated when `accumulate`)."""
@@ -267,9 +293,11 @@ class LearnedSimulator(nn.Module):
     def _network_prediction(self, geometry, scene_graph, static_positions, static_quaternions):
         """[positions, quaternions, linear, angular] at t+1 (velocities per step, or None)."""
         device = next(self.parameters()).device
-        normalized = self(scene_graph.graph.to(device))[: scene_graph.num_dynamic_vertex_nodes]
-        previous, now = scene_graph.dynamic_vertex_positions[:2]
-        next_vertices, next_vertex_velocities = self.postprocess(normalized, previous, now)
+        acceleration = self.network_acceleration(scene_graph.graph.to(device))
+        acceleration = acceleration[: scene_graph.num_dynamic_vertex_nodes].detach().cpu().double().numpy()
+        next_vertices, next_vertex_velocities = integrate(
+            acceleration, *scene_graph.dynamic_vertex_positions[:2]
+        )
         positions, quaternions = rigid_poses_from_vertices(
             geometry, next_vertices, static_positions, static_quaternions
         )
@@ -301,6 +329,18 @@ class LearnedSimulator(nn.Module):
         if linear is None:
             return positions, quaternions, None, None
         return positions, quaternions, linear / self.config.dt, angular / self.config.dt
+
+
+def rotations_about_gravity(count, gravity=None) -> torch.Tensor:
+    """(count, 3, 3) float32 rotations by 2πk/count, k = 0 … count−1, about the axis of
+    `gravity` (3,), or about z when it is None or zero (the up axis of every dataset here)."""
+    axis = np.array([0.0, 0.0, 1.0])
+    if gravity is not None and np.linalg.norm(gravity) > 0:
+        axis = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
+    cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    angles = 2 * np.pi * np.arange(count) / count
+    turns = [np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross for angle in angles]
+    return torch.from_numpy(np.stack(turns).astype(np.float32))
 
 
 def acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None):

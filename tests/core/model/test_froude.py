@@ -25,6 +25,7 @@ class BallisticSimulator:
         self.config = SimulatorConfig()
         self.dt = dt
         self.sides = []
+        self.rotations = 1
 
     def predict(self, geometry, positions, quaternions, free_flight=None, velocities=None):
         return (*self.step(geometry, positions, quaternions, free_flight), None, None)

@@ -215,9 +215,10 @@ def copied_to(graph: MultiGraph, device) -> MultiGraph:
 
 
 def run_network(workload: Workload, device) -> torch.Tensor:
-    """The network part of a step: graph to the device, normalize, encode-process-decode."""
+    """The network part of a step: graph to the device, normalize, encode-process-decode,
+    denormalize (over the simulator's `rotations`, as a step runs it)."""
     with torch.no_grad():
-        return workload.simulator(copied_to(workload.graph, device))
+        return workload.simulator.network_acceleration(copied_to(workload.graph, device))
 
 
 def run_training_step(workload: Workload, device) -> float:

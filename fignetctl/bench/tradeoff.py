@@ -24,6 +24,8 @@ Knobs and what a point is:
   padded as extract-mesh pads its mask box, so segmentation does not enter the figure.
 - ``nerf-steps``: held-out PSNR against training seconds, from a `fit-nerf` learning curve.
 - ``device``: rollout step time on the CPU and on CUDA where torch sees a GPU.
+- ``rotations``: the bundled FIGNet* averaged over K turns of the scene about gravity
+  (`LearnedSimulator.network_acceleration`); K network evaluations per step, one graph.
 """
 
 from __future__ import annotations
@@ -49,9 +51,11 @@ KNOBS = (
     "marching-cubes",
     "nerf-steps",
     "device",
+    "rotations",
 )
 DECIMATION_FACES = (16, 32, 64, 128, 256, 512, 1024, None)
 COLLISION_RADII = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4)
+ROTATIONS = (1, 2, 4, 8)
 NETWORK_SIZES = ((32, 1), (32, 2), (32, 4), (16, 2), (64, 2))
 GRID_RESOLUTIONS = (24, 32, 48, 64, 96, 128, 160)
 NO_GPU = "no GPU here"
@@ -763,6 +767,24 @@ def sweep_device(data_path, config: TradeoffSettings, on_progress=None) -> dict:
     result = rollout_sweep_result("device", "torch device", points, notes, config, data_path)
     result["cuda"] = torch.cuda.get_device_name(0) if "cuda" in devices else NO_GPU
     return result
+
+
+def sweep_rotations(data_path, config: TradeoffSettings, on_progress=None, counts=None) -> dict:
+    from fignetctl.core.model.apply import load_model
+
+    simulator = load_model(None, config.device).eval()
+    counts = counts or (ROTATIONS[:2] if config.quick else ROTATIONS)
+    scenes = load_scenes(data_path, simulator.config, config.trajectories)
+    points = []
+    with _torch_threads(config.threads):
+        for count in counts:
+            simulator.rotations = count
+            points.append(rollout_point(count, simulator, scenes, config, on_progress))
+    notes = [
+        "K turns by 2πk/K about gravity, each answer turned back and averaged: exactly equivariant to those turns",
+        "the graph is built once per step and the network runs on K copies of it in one batch",
+    ]
+    return rollout_sweep_result("rotations", "turns about gravity averaged", points, notes, config, data_path)
 
 
 def _torch_threads(threads):

@@ -36,7 +36,8 @@ def tradeoff(knobs, out_dir, overwrite, **values):
 
     \b
     Knobs: decimation, architecture, collision-radius, message-passing (trains small
-    models), marching-cubes (needs --capture and --nerf), nerf-steps, device; or all.
+    models), marching-cubes (needs --capture and --nerf), nerf-steps, device, rotations;
+    or all.
 
     \b
     Example:

@@ -154,5 +154,6 @@ def run_knob(core, knob, inputs, config, on_progress):
         "architecture": core.sweep_architecture,
         "collision-radius": core.sweep_collision_radius,
         "device": core.sweep_device,
+        "rotations": core.sweep_rotations,
     }[knob]
     return sweep(inputs["data"], config, on_progress)

@@ -13,18 +13,21 @@ def run(args):
     return CliRunner().invoke(cli, ["tradeoff", *args])
 
 
-def test_quick_decimation_and_device(tmp_path):
+def test_quick_decimation_device_and_rotations(tmp_path):
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=6, height=0.6))
     out = tmp_path / "out"
-    result = run(["decimation", "device", "--quick", "--data", str(data), "-o", str(out)])
+    result = run(["decimation", "device", "rotations", "--quick", "--data", str(data), "-o", str(out)])
     assert result.exit_code == 0, result.output
-    for knob in ("decimation", "device"):
+    for knob in ("decimation", "device", "rotations"):
         for ext in ("json", "csv", "png"):
             assert (out / f"tradeoff-{knob}.{ext}").is_file()
     decimation = json.loads((out / "tradeoff-decimation.json").read_text())
     assert [p["setting"] for p in decimation["points"]] == [64, "full"]
     assert all(p["seconds"]["n"] == 2 and p["error"]["n"] == 1 for p in decimation["points"])
     assert any(p["pareto"] for p in decimation["points"])
+    rotations = json.loads((out / "tradeoff-rotations.json").read_text())
+    assert [p["setting"] for p in rotations["points"]] == [1, 2]
+    assert all(p["failed_rollouts"] == 0 for p in rotations["points"])
     device = json.loads((out / "tradeoff-device.json").read_text())
     if not torch.cuda.is_available():
         assert device["cuda"] == "no GPU here" and [p["setting"] for p in device["points"]] == ["cpu"]

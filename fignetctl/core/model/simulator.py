@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import numbers
 
 import numpy as np
 import torch
@@ -217,7 +218,7 @@ class LearnedSimulator(nn.Module):
         """
         if self.rotations == 1:
             return self.acceleration_normalizer.inverse(self(graph))
-        if not (isinstance(self.rotations, int) and self.rotations > 1):
+        if not (isinstance(self.rotations, numbers.Integral) and self.rotations > 1):
             raise FignetError(
                 f"rotations must be a whole number of turns, at least 1, not {self.rotations!r}"
             )

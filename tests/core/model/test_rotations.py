@@ -136,6 +136,9 @@ def test_one_rotation_is_the_network_as_it_is_and_more_change_the_answer():
     assert not torch.allclose(averaged, plain, atol=1e-4)
     copy = simulator.with_graph_config(collision_radius=0.25)
     assert copy.rotations == 3
-    copy.rotations = 0
-    with pytest.raises(FignetError, match="at least 1"):
-        copy.network_acceleration(graph)
+    copy.rotations = np.int64(2)  # any whole number will do
+    assert copy.network_acceleration(graph).shape == plain.shape
+    for wrong in (0, 2.5):
+        copy.rotations = wrong
+        with pytest.raises(FignetError, match="at least 1"):
+            copy.network_acceleration(graph)

@@ -54,9 +54,11 @@ from fignetctl.core.shape_matching import fit_rigid_transform
 from fignetctl.core.transforms import (
     matrix_to_quat,
     quat_conjugate,
+    quat_from_axis_angle,
     quat_from_rotation_vector,
     quat_multiply,
     quat_normalize,
+    quat_to_matrix,
 )
 from fignetctl.errors import FignetError
 
@@ -335,13 +337,10 @@ class LearnedSimulator(nn.Module):
 def rotations_about_gravity(count, gravity=None) -> torch.Tensor:
     """(count, 3, 3) float32 rotations by 2πk/count, k = 0 … count−1, about the axis of
     `gravity` (3,), or about z when it is None or zero (the up axis of every dataset here)."""
-    axis = np.array([0.0, 0.0, 1.0])
-    if gravity is not None and np.linalg.norm(gravity) > 0:
-        axis = -np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
-    cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    up = (0.0, 0.0, 1.0) if gravity is None or not np.any(gravity) else -np.asarray(gravity, np.float64)
     angles = 2 * np.pi * np.arange(count) / count
-    turns = [np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross for angle in angles]
-    return torch.from_numpy(np.stack(turns).astype(np.float32))
+    turns = quat_to_matrix(quat_from_axis_angle(np.broadcast_to(up, (count, 3)), angles))
+    return torch.from_numpy(turns.astype(np.float32))
 
 
 def acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None):

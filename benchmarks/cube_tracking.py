@@ -42,9 +42,12 @@ from fignetctl.core.model.training import simulator_config_for
 HORIZONS = (1, 5, 10, 15, 20, 28)
 
 
-def config_of(size: str):
-    """The velocity-state FIGNet* of a network size (the suite's: 'tiny')."""
-    return simulator_config_for("fignet-star", size, 0.2, state="velocities", static_receivers=False)
+def config_of(size: str, free_motion: bool = False):
+    """The velocity-state FIGNet* of a network size (the suite's: 'tiny'), decoding the change
+    from free motion when `free_motion`."""
+    return simulator_config_for(
+        "fignet-star", size, 0.2, state="velocities", static_receivers=False, free_motion=free_motion
+    )
 
 
 def model_rows(simulator, data, scene) -> list:
@@ -62,7 +65,7 @@ def measure(case: str, args) -> dict:
     """Train on one case, then the model's and physics' rows for it."""
     count, seed, region = CUBE_CASES[case]
     data = cube_trajectories(count, seed, region)
-    config = config_of(args.size)
+    config = config_of(args.size, args.free_motion)
     scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
     started = time.perf_counter()
     trainer = overfit(
@@ -136,6 +139,9 @@ def main() -> None:
     parser.add_argument(
         "--size", choices=list(PRESETS), default="tiny", help="network size (the suite's: tiny)"
     )
+    parser.add_argument(
+        "--free-motion", action="store_true", help="the network predicts the change from free motion"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", nargs="+", choices=list(CUBE_CASES), default=list(CUBE_CASES))
     parser.add_argument("-o", "--output", default=None, help="write the figures as json here")
@@ -158,6 +164,7 @@ def main() -> None:
                 "noise": args.noise,
                 "pushforward": args.pushforward,
                 "calm_weight": args.calm_weight,
+                "free_motion": args.free_motion,
                 "horizons": list(HORIZONS),
                 "cases": results,
             },

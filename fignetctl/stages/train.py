@@ -70,6 +70,11 @@ class Settings:
         "Face-face edges also carry their closest points' relative velocity and its approach rate "
         "(docs/simulator.md).",
     )
+    free_motion: bool = setting(
+        False,
+        "The network predicts what contact changes of each object's free motion (gravity, constant "
+        "spin), which is computed and added (velocity state; docs/simulator.md).",
+    )
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
@@ -172,6 +177,7 @@ def configs(settings: Settings, device: str = "cpu"):
         settings.mass_feature == "log",
         settings.decimation,
         settings.contact_velocity,
+        settings.free_motion,
     )
     training_config = TrainingSettings(
         steps=settings.steps,
@@ -229,6 +235,10 @@ def run(
     if settings.pushforward_model and not settings.pushforward:
         raise SettingError(
             "--pushforward-model gives the pushforward examples' start: give --pushforward N too"
+        )
+    if settings.free_motion and settings.state != "velocities":
+        raise SettingError(
+            "--free-motion adds the free motion of each object's recorded velocity: give --state velocities"
         )
     if settings.resume and overwrite:
         raise SettingError("--resume continues --output, --overwrite replaces it: give one")

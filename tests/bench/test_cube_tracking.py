@@ -9,10 +9,18 @@ from tests.bench import load_benchmark
 
 
 @pytest.mark.slow
-def test_a_short_run_reports_the_model_beside_physics_at_every_horizon():
+@pytest.mark.parametrize("free_motion", [False, True])
+def test_a_short_run_reports_the_model_beside_physics_at_every_horizon(free_motion):
     bench = load_benchmark("cube_tracking")
     args = argparse.Namespace(
-        steps=3, learning_rate=[3e-3, 3e-4], noise=0.0, seed=0, pushforward=0, calm_weight=0.0, size="tiny"
+        steps=3,
+        learning_rate=[3e-3, 3e-4],
+        noise=0.0,
+        seed=0,
+        pushforward=0,
+        calm_weight=0.0,
+        size="tiny",
+        free_motion=free_motion,
     )
     result = bench.measure("dropped", args)
     assert result["cubes"] == 1 and 0.0 < result["fvu"]

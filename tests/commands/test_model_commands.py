@@ -107,6 +107,24 @@ def test_train_feature_options_reach_the_model_file(trained, tmp_path, option, f
     assert "Traceback" not in result.output
 
 
+def test_train_free_motion_reaches_the_model_file_and_needs_the_velocity_state(trained, tmp_path):
+    """--free-motion is recorded, a model without it cannot seed a run with it, and a two-frame
+    model cannot have it (it carries no velocity to fly on)."""
+    from fignetctl.core.model.checkpoint import load_checkpoint
+
+    _, data, model = trained
+    out = tmp_path / "free.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--free-motion"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert load_checkpoint(out).config.free_motion and not load_checkpoint(model).config.free_motion
+    result = CliRunner().invoke(cli, [*args, "--init-from", str(model), "--overwrite"])
+    assert result.exit_code == 1 and "trained without --free-motion; give this run the same" in result.output
+    result = CliRunner().invoke(cli, [*args, "--state", "positions", "--overwrite"])
+    assert result.exit_code != 0 and "--state velocities" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_train_decimation_option_reaches_the_model_file(trained, tmp_path):
     from fignetctl.core.model.checkpoint import load_checkpoint
 

@@ -95,7 +95,9 @@ def one_step_examples(simulator, scenes, frames_per_scene=None, seed=0):
 def fraction_unexplained(simulator, examples, batch_size=16) -> dict:
     """{"all": FVU over every component, "position": over a_x, "velocity": over a_u (velocity
     state only), "per_component": [...]} of a model on one_step_examples (averaged over its
-    `rotations`)."""
+    `rotations`). For a `free_motion` model these are of what its network must output, the
+    change from free motion, a smaller target than the whole correction: compare models of both
+    kinds by `rigid_fraction_unexplained`."""
     from fignetctl.core.model.training import dynamic_rows
 
     predictions, targets = [], []

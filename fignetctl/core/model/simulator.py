@@ -26,6 +26,12 @@ Two kinds of state (`SimulatorConfig.state`):
 
   The next pose is shape-matched to x_{t+1}, the next (v, ω) is the rigid velocity field
   fitted to u_{t+1} by least squares (`rigid_velocities_from_vertices`).
+
+With `SimulatorConfig.free_motion` (velocity state only) the decoder gives what contact changes
+of free motion instead: a_x and a_u are each vertex's free-motion corrections (the object's
+centre on its parabola under gravity, its spin constant: `free_motion_corrections`) plus the
+network's output, so an object that touches nothing needs the answer 0 from the network, and
+gravity and the turn of a spinning object are computed, not learned.
 """
 
 from __future__ import annotations
@@ -99,8 +105,14 @@ class SimulatorConfig:
     """Seconds per step of the training data (None: not recorded, model files before it)."""
     gravity: tuple | None = None
     """Gravity (m/s²) of the training data (None: not recorded)."""
+    free_motion: bool = False
+    """True (velocity state only): the network decodes the change contact makes to free motion,
+    which is added to it (module docstring); False: the whole correction (model files before
+    this field)."""
 
     def __post_init__(self) -> None:
+        if self.free_motion and self.state != "velocities":
+            raise ValueError("free_motion needs the velocity state (state='velocities')")
         if self.state not in STATES:
             raise ValueError(f"state must be one of {STATES}, not {self.state!r}")
         if self.decimation not in DECIMATIONS:
@@ -136,6 +148,7 @@ class SimulatorConfig:
             state=values.get("state", "positions"),
             dt=values.get("dt"),
             gravity=None if gravity is None else tuple(gravity),
+            free_motion=values.get("free_motion", False),  # absent: a model file older than the field
         )
 
 
@@ -202,11 +215,20 @@ class LearnedSimulator(nn.Module):
         return self.network(self.preprocess(graph, accumulate))
 
     def inverse_postprocess(
-        self, next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, accumulate=False
+        self,
+        next_vertices,
+        vertices_previous,
+        vertices_now,
+        next_vertex_velocities=None,
+        accumulate=False,
+        free_motion=None,
     ):
         """What the network must output to reach x_{t+1} (and u_{t+1} for a velocity state) from
-        the history: normalized `acceleration_targets`, a (n, output_size) float32 tensor."""
+        the history: normalized `acceleration_targets`, less `free_motion` ((n, 6), a
+        free-motion model's `free_motion_of`) when given, a (n, output_size) float32 tensor."""
         targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
+        if free_motion is not None:
+            targets = targets - free_motion
         return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
 
     def network_acceleration(self, graph: MultiGraph) -> torch.Tensor:
@@ -236,11 +258,15 @@ class LearnedSimulator(nn.Module):
         """(n, output_size) raw `acceleration_targets` -> normalized (statistics updated when `accumulate`)."""
         return self.acceleration_normalizer(targets, accumulate)
 
-    def postprocess(self, normalized_acceleration, vertices_previous, vertices_now):
+    def postprocess(self, normalized_acceleration, vertices_previous, vertices_now, free_motion=None):
         """The network's output -> x_{t+1}, and u_{t+1} for a velocity state (None for a
-        positions state): `integrate` of the denormalized output; float64 numpy."""
+        positions state): `integrate` of the denormalized output plus `free_motion` (as in
+        `inverse_postprocess`) when given; float64 numpy."""
         acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
-        return integrate(acceleration.detach().cpu().double().numpy(), vertices_previous, vertices_now)
+        acceleration = acceleration.detach().cpu().double().numpy()
+        if free_motion is not None:
+            acceleration = acceleration + free_motion
+        return integrate(acceleration, vertices_previous, vertices_now)
 
     def step_velocities(self, positions, quaternions, velocities):
         """(O, 3) x2 linear and angular velocities in metres and radians per step at frame t:
@@ -285,7 +311,12 @@ class LearnedSimulator(nn.Module):
         if free_flight is not None and np.array_equal(flying, ~geometry.static):  # nothing touches anything
             predicted = self._standing_still(positions[2], quaternions[2])
         else:
-            predicted = self._network_prediction(geometry, scene_graph, positions[2], quaternions[2])
+            free_motion = free_motion_of(
+                self.config, geometry, scene_graph.dynamic_vertex_positions[1], positions[1], step_velocities
+            )
+            predicted = self._network_prediction(
+                geometry, scene_graph, positions[2], quaternions[2], free_motion
+            )
         if flying.any():
             flown = self._free_flight(positions, quaternions, step_velocities, free_flight)
             for values, flown_values in zip(predicted, flown):
@@ -293,11 +324,16 @@ class LearnedSimulator(nn.Module):
                     values[flying] = flown_values[flying]
         return self._physical(predicted)
 
-    def _network_prediction(self, geometry, scene_graph, static_positions, static_quaternions):
-        """[positions, quaternions, linear, angular] at t+1 (velocities per step, or None)."""
+    def _network_prediction(
+        self, geometry, scene_graph, static_positions, static_quaternions, free_motion=None
+    ):
+        """[positions, quaternions, linear, angular] at t+1 (velocities per step, or None);
+        `free_motion`: what the network's output is added to (`free_motion_of`), or None."""
         device = next(self.parameters()).device
         acceleration = self.network_acceleration(scene_graph.graph.to(device))
         acceleration = acceleration[: scene_graph.num_dynamic_vertex_nodes].detach().cpu().double().numpy()
+        if free_motion is not None:
+            acceleration = acceleration + free_motion
         next_vertices, next_vertex_velocities = integrate(
             acceleration, *scene_graph.dynamic_vertex_positions[:2]
         )
@@ -355,6 +391,42 @@ def acceleration_targets(next_vertices, vertices_previous, vertices_now, next_ve
     if next_vertex_velocities is None:
         return position_part
     return np.concatenate([position_part, np.asarray(next_vertex_velocities, np.float64) - velocity], axis=1)
+
+
+def free_motion_of(config, geometry, vertices_now, centres, step_velocities) -> np.ndarray | None:
+    """(Vd, 6) `free_motion_corrections` of the dynamic vertices when `config` (a
+    SimulatorConfig) has `free_motion`: what the network's output is added to; else None.
+
+    vertices_now : (Vd, 3) geometry.dynamic_vertices at t; centres : (O, 3) the objects' centres
+    at t; step_velocities : (linear, angular) (O, 3) each, per step (the angular one is read)."""
+    if not config.free_motion:
+        return None
+    if config.dt is None or config.gravity is None:
+        raise FignetError("a free-motion model must record the time step and gravity of its data")
+    gravity_step = np.asarray(config.gravity, np.float64) * config.dt**2
+    owner = geometry.vertex_object[geometry.dynamic_vertices]
+    return free_motion_corrections(vertices_now, owner, centres, step_velocities[1], gravity_step)
+
+
+def free_motion_corrections(vertices, vertex_object, centres, angular, gravity_step) -> np.ndarray:
+    """(n, 6) [a_x, a_u] of vertices over one step of their objects' free motion: each centre on
+    its parabola, each spin constant (as `free_flight_state`).
+
+    For a vertex at offset r = x − c from its object's centre, with linear velocity v and angular
+    velocity ω (per step), u = v + ω × r, a_g = gravity · dt² and R the turn by ω:
+        a_x = x' − x − u = a_g / 2 + R r − r − ω × r
+        a_u = u' − u     = a_g + ω × (R r − r)
+    The centre's own velocity v cancels from both: u carries it. vertices (n, 3) at t,
+    vertex_object (n,) the object of each; centres, angular (O, 3) at t (radians per step);
+    gravity_step (3,) metres per step². float64
+    """
+    angular = np.asarray(angular, np.float64)[vertex_object]
+    offsets = np.asarray(vertices, np.float64) - np.asarray(centres, np.float64)[vertex_object]
+    turned = np.einsum("nij,nj->ni", quat_to_matrix(quat_from_rotation_vector(angular)), offsets)
+    gravity_step = np.asarray(gravity_step, np.float64)
+    position = 0.5 * gravity_step + turned - offsets - np.cross(angular, offsets)
+    velocity = gravity_step + np.cross(angular, turned - offsets)
+    return np.concatenate([position, velocity], axis=1)
 
 
 def integrate(acceleration, vertices_previous, vertices_now):

@@ -39,7 +39,12 @@ from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
-from fignetctl.core.model.simulator import LearnedSimulator, SimulatorConfig, acceleration_targets
+from fignetctl.core.model.simulator import (
+    LearnedSimulator,
+    SimulatorConfig,
+    acceleration_targets,
+    free_motion_of,
+)
 from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
@@ -243,6 +248,9 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
             scene.angular_velocities[frame + 1] * scene.dt,
         )
     targets = acceleration_targets(after, previous, now, next_velocities)
+    free_motion = free_motion_of(simulator_config, geometry, now, positions[1], velocities)
+    if free_motion is not None:
+        targets = targets - free_motion
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
 
 
@@ -813,7 +821,9 @@ def make_trainer(
 def _load_weights(simulator, path) -> None:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size) or it reads mass with the
-    other feature (kg or log), or its face-face edges differ in `contact_velocity`."""
+    other feature (kg or log), or its face-face edges differ in `contact_velocity`, or it
+    decodes the whole correction where this run decodes the change from free motion, or the
+    other way round (`free_motion`)."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -824,6 +834,9 @@ def _load_weights(simulator, path) -> None:
     if source.config.graph.contact_velocity != simulator.config.graph.contact_velocity:
         trained = "with" if source.config.graph.contact_velocity else "without"
         raise FignetError(f"{path}: it was trained {trained} `contact_velocity`; give this run the same")
+    if source.config.free_motion != simulator.config.free_motion:
+        trained = "with" if source.config.free_motion else "without"
+        raise FignetError(f"{path}: it was trained {trained} `free_motion`; give this run the same")
     try:
         simulator.load_state_dict(source.state_dict())
     except RuntimeError as error:
@@ -846,6 +859,7 @@ def simulator_config_for(
     log_mass=False,
     decimation="closest",
     contact_velocity=False,
+    free_motion=False,
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
     from fignetctl.core.model.network import PRESETS
@@ -870,6 +884,7 @@ def simulator_config_for(
         decimation=decimation,
         max_static_edge=max_static_edge,
         state=state,
+        free_motion=free_motion,
     )
 
 

@@ -420,9 +420,11 @@ def free_motion_corrections(vertices, vertex_object, centres, angular, gravity_s
     vertex_object (n,) the object of each; centres, angular (O, 3) at t (radians per step);
     gravity_step (3,) metres per step². float64
     """
-    angular = np.asarray(angular, np.float64)[vertex_object]
+    angular = np.asarray(angular, np.float64)
+    turns = quat_to_matrix(quat_from_rotation_vector(angular))  # one per object
     offsets = np.asarray(vertices, np.float64) - np.asarray(centres, np.float64)[vertex_object]
-    turned = np.einsum("nij,nj->ni", quat_to_matrix(quat_from_rotation_vector(angular)), offsets)
+    turned = np.einsum("nij,nj->ni", turns[vertex_object], offsets)
+    angular = angular[vertex_object]
     gravity_step = np.asarray(gravity_step, np.float64)
     position = 0.5 * gravity_step + turned - offsets - np.cross(angular, offsets)
     velocity = gravity_step + np.cross(angular, turned - offsets)

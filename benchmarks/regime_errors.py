@@ -7,7 +7,9 @@ error, so they are what an MSE loss fits; calm objects' small errors (and their 
 pulls a resting object into the floor) are what a rollout adds up over many frames. With
 --radii, it also says, per regime, how many vertex-frames belong to an object with no face
 within each radius of another object's (no face-face edge at that collision radius) and how
-much of the squared error they carry: what a larger radius could reach.
+much of the squared error they carry: what a larger radius could reach. For a velocity-state
+model it also gives, per regime, how much of the recorded change of each object's velocity and
+spin over the step the network's step follows (`learnability.step_response`).
 
     python benchmarks/regime_errors.py benchmarks/results/velocity-continued-12665-more-steps/model.pt \
         data/movi-b-test.h5 -n 6 --radii 0.2 0.3 0.4 -o regimes.json
@@ -56,6 +58,24 @@ def main() -> None:
     print(
         f"(RMS of |a_{last[0].replace('v', 'u')}| and of its error, and the error's mean upwards, mm per frame)"
     )
+    if simulator.config.uses_velocities:
+        print(
+            f"\n{'per object':18s} {'share':>6s} {'dv':>7s} {'error':>7s} {'caught':>7s}"
+            f" {'dw':>7s} {'error':>7s} {'caught':>7s}"
+        )
+        for name, figures in regimes.items():
+            if figures["share"]:
+                response = figures["response"]
+                cells = [
+                    f"{response[part][key]:7.3f}" if response[part][key] is not None else f"{'-':>7s}"
+                    for part in ("linear", "angular")
+                    for key in ("target_rms", "error_rms", "captured")
+                ]
+                print(f"{name:18s} {response['share']:6.3f} " + " ".join(cells))
+        print(
+            "(RMS of the recorded change over the step of each object's velocity beyond free fall's, m/s,"
+            " and of its spin, rad/s; of the network's error; and the share of the change it follows)"
+        )
     for radius in args.radii:
         key = f"{radius:g}"
         cells = [

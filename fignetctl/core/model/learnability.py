@@ -127,6 +127,15 @@ def rigid_corrections(simulator, scenes):
     (Vd, 6) for a velocity state, per-vertex corrections a_x = x_{t+1} − x_t − u_t (and
     a_u = u_{t+1} − u_t) of the next pose (and velocity) that `simulator.predict` (the network
     alone, shape matching and the rigid velocity fit included) steps to, and of the recorded one."""
+    for scene, t, step, truth in one_steps(simulator, scenes):
+        yield scene, t, _vertex_corrections(scene, t, step), _vertex_corrections(scene, t, truth)
+
+
+def one_steps(simulator, scenes):
+    """For each noise-free frame t of the scenes, (scene, t, predicted, recorded): the next
+    (positions, quaternions, linear and angular velocities in m/s and rad/s, or None, None for a
+    positions state) that `simulator.predict` (the network alone) steps to from the recorded
+    frame t, and the recorded ones."""
     for scene in scenes:
         for t in range(1, scene.positions.shape[0] - 1):
             velocities = None
@@ -141,7 +150,7 @@ def rigid_corrections(simulator, scenes):
             truth = (scene.positions[t + 1], scene.quaternions[t + 1], None, None)
             if velocities is not None:
                 truth = truth[:2] + (scene.velocities[t + 1], scene.angular_velocities[t + 1])
-            yield scene, t, _vertex_corrections(scene, t, step), _vertex_corrections(scene, t, truth)
+            yield scene, t, step, truth
 
 
 def rigid_fraction_unexplained(simulator, scenes) -> dict:
@@ -190,19 +199,37 @@ def regime_errors(simulator, scenes, radii=()) -> dict:
     vertex-frames whose object has no face within that radius of another object's face at
     frame t (`objects_out_of_reach`: no face–face edge at that collision radius), "error_share":
     theirs of the squared error over all regimes}}: how much of the error a larger radius
-    could give the network something to work with."""
-    from fignetctl.core.model.training import REGIMES
+    could give the network something to work with.
+
+    A velocity-state model's regimes also get "response": {"share": of the dynamic
+    object-frames, "linear" and "angular": `step_response` of the change over the step of each
+    object's velocity beyond free fall's (m/s) and of its spin (rad/s)}, how much of what the
+    recording's step changes the network's step changes."""
+    from fignetctl.core.model.training import REGIMES, object_regimes
 
     gravity = np.asarray(simulator.config.gravity, np.float64)
     down = gravity / np.linalg.norm(gravity)
     velocity_state = simulator.config.uses_velocities
     labels, errors, targets, out_of_reach = [], [], [], []
-    for scene, t, prediction, truth in rigid_corrections(simulator, scenes):
-        labels.append(motion_regimes(scene, t, gravity, velocity_state))
+    object_labels, changes = [], {"linear": ([], []), "angular": ([], [])}
+    for scene, t, step, recorded in one_steps(simulator, scenes):
+        prediction, truth = _vertex_corrections(scene, t, step), _vertex_corrections(scene, t, recorded)
+        owner = scene.geometry.vertex_object[scene.geometry.dynamic_vertices]
+        regimes = object_regimes(scene, t, gravity, velocity_state)
+        labels.append(regimes[owner])
         errors.append(prediction - truth)
         targets.append(truth)
-        owner = scene.geometry.vertex_object[scene.geometry.dynamic_vertices]
         out_of_reach.append(objects_out_of_reach(scene, t, radii)[:, owner])
+        if velocity_state:
+            dynamic = ~scene.geometry.static
+            object_labels.append(regimes[dynamic])
+            for part, now, fall in (
+                ("linear", scene.velocities[t], gravity * scene.dt),
+                ("angular", scene.angular_velocities[t], 0.0),
+            ):
+                column = 2 if part == "linear" else 3
+                changes[part][0].append((step[column] - now - fall)[dynamic])
+                changes[part][1].append((recorded[column] - now - fall)[dynamic])
     label, error, target = np.concatenate(labels), np.concatenate(errors), np.concatenate(targets)
     out_of_reach = np.concatenate(out_of_reach, axis=1)
     squared = (error**2).sum(1)
@@ -229,6 +256,15 @@ def regime_errors(simulator, scenes, radii=()) -> dict:
             "bias_mm": float((error[rows, last] @ -down).mean() * 1e3),
             "error_share": float(squared[rows].sum() / total) if total else 0.0,
         }
+        if velocity_state:
+            objects = np.concatenate(object_labels) == index
+            result[name]["response"] = {
+                "share": float(objects.mean()),
+                **{
+                    part: step_response(np.concatenate(predicted)[objects], np.concatenate(truth)[objects])
+                    for part, (predicted, truth) in changes.items()
+                },
+            }
         if len(radii):
             result[name]["out_of_reach"] = {
                 f"{radius:g}": {
@@ -238,6 +274,29 @@ def regime_errors(simulator, scenes, radii=()) -> dict:
                 for radius, far in zip(radii, out_of_reach)
             }
     return result
+
+
+RESPONSE_RESOLUTION = 1e-3
+"""m/s or rad/s: recorded changes over a step whose RMS is under this have no `captured` slope."""
+
+
+def step_response(predicted, recorded) -> dict:
+    """How much of the recorded changes (N, 3) a model's predicted ones follow: {"target_rms" and
+    "error_rms": RMS of |recorded| and of |predicted − recorded|, "captured": the least-squares
+    slope of predicted on recorded through zero, Σ p·r / Σ |r|² (1: the whole change, 0: none;
+    below 1, the network answers with a shrunken change, as a least-squares fit does with what
+    it cannot tell apart), None when the recorded changes' RMS is under RESPONSE_RESOLUTION, as
+    in free fall, where the recording's linear change beyond free fall is float rounding}."""
+    if not len(recorded):
+        return {"target_rms": 0.0, "error_rms": 0.0, "captured": None}
+    target_rms = float(np.sqrt((recorded**2).sum(1).mean()))
+    return {
+        "target_rms": target_rms,
+        "error_rms": float(np.sqrt(((predicted - recorded) ** 2).sum(1).mean())),
+        "captured": float((predicted * recorded).sum() / (recorded**2).sum())
+        if target_rms >= RESPONSE_RESOLUTION
+        else None,
+    }
 
 
 def objects_out_of_reach(scene, t, radii) -> np.ndarray:

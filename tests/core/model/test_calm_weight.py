@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from fignetctl.core.model.learnability import motion_regimes, regime_errors
+from fignetctl.core.model.learnability import motion_regimes, regime_errors, step_response
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
 from fignetctl.core.model.training import (
     CALM_TOLERANCE,
@@ -180,3 +180,62 @@ def test_regime_errors_say_which_errors_lie_out_of_the_collision_radius():
     assert free["0.1"]["error_share"] == pytest.approx(0.9) and free["5"]["error_share"] == 0.0
     assert impact["0.1"]["error_share"] == pytest.approx(0.1) and impact["1.47"]["error_share"] == 0.0
     assert "out_of_reach" not in regime_errors(_SinkingTwoFrameModel(), scenes)["impact"]
+
+
+class _ShrunkResponseModel:
+    """A velocity-state model that steps every scene to its recorded next poses, with `linear`
+    times the recorded change of each object's velocity beyond free fall's and `angular` times
+    its recorded change of spin."""
+
+    config = VELOCITIES
+
+    def __init__(self, scene, linear, angular):
+        self.scene, self.linear, self.angular = scene, linear, angular
+
+    def predict(self, geometry, positions, quaternions, velocities=None):
+        scene = self.scene
+        t = next(t for t in range(len(scene.positions)) if np.array_equal(scene.positions[t], positions[1]))
+        linear, angular = velocities
+        fall = np.array(GRAVITY) * scene.dt
+        return (
+            positions[2],
+            quaternions[2],
+            linear + fall + self.linear * (scene.velocities[t + 1] - linear - fall),
+            angular + self.angular * (scene.angular_velocities[t + 1] - angular),
+        )
+
+
+def test_the_response_says_how_much_of_each_change_of_motion_a_model_follows():
+    data = _bouncing_box(impact=6)
+    angular = np.zeros((12, 2, 3), np.float32)
+    angular[6:, 1, 0] = 2.0  # the bounce (frame 5 -> 6) also sets it spinning
+    scene = _scene(_edited(data, angular_velocities=angular))
+    regimes = regime_errors(_ShrunkResponseModel(scene, linear=0.25, angular=0.5), [scene])
+    impact, free = regimes["impact"]["response"], regimes["free fall"]["response"]
+    assert impact["share"] == pytest.approx(1 / 10) and free["share"] == pytest.approx(9 / 10)
+    assert impact["linear"]["target_rms"] == pytest.approx(6.0, rel=1e-4)  # -3 m/s to +3 m/s
+    assert impact["linear"]["error_rms"] == pytest.approx(0.75 * 6.0, rel=1e-4)
+    assert impact["linear"]["captured"] == pytest.approx(0.25, rel=1e-5)
+    assert impact["angular"]["target_rms"] == pytest.approx(2.0)
+    assert impact["angular"]["captured"] == pytest.approx(0.5, rel=1e-5)
+    # in free fall nothing changes but float rounding: no slope to speak of, and no error
+    for part in ("linear", "angular"):
+        assert free[part]["captured"] is None and free[part]["error_rms"] < 1e-5
+    positions_state = regime_errors(
+        _SinkingTwoFrameModel(), scenes_from_data(data, POSITIONS, TRAINING_STATIC_REACH)
+    )
+    assert "response" not in positions_state["free fall"]
+
+
+def test_step_response_is_the_slope_through_zero():
+    recorded = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    response = step_response(0.5 * recorded + [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]], recorded)
+    assert response["captured"] == pytest.approx(0.5)  # the part across the changes is not followed
+    assert response["target_rms"] == pytest.approx(np.sqrt(2.5))
+    assert response["error_rms"] == pytest.approx(np.sqrt((0.25 + 1 + 1 + 1) / 2))
+    assert step_response(recorded, np.zeros((2, 3)))["captured"] is None
+    assert step_response(np.zeros((0, 3)), np.zeros((0, 3))) == {
+        "target_rms": 0.0,
+        "error_rms": 0.0,
+        "captured": None,
+    }

@@ -176,19 +176,9 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
     return result
 
 
-def motion_regimes(scene, t, gravity, velocity_state=True) -> np.ndarray:
-    """(Vd,) index into training.REGIMES of each dynamic vertex's object over the recorded step
-    t → t + 1 (training.object_regimes)."""
-    from fignetctl.core.model.training import object_regimes
-
-    geometry = scene.geometry
-    return object_regimes(scene, t, gravity, velocity_state)[
-        geometry.vertex_object[geometry.dynamic_vertices]
-    ]
-
-
 def regime_errors(simulator, scenes, radii=()) -> dict:
-    """The `rigid_corrections` errors of a model split by the recorded `motion_regimes`, in
+    """The `rigid_corrections` errors of a model split by the regime the recording has each vertex's object in over the
+    step (`training.object_regimes`), in
     millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
     "error_rms_mm": {"position": of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
     the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls

@@ -116,6 +116,10 @@ def main() -> None:
             f"error: {args.model} is a two-frame model; this compares the spin a velocity state carries"
         )
     data = read_trajectories(args.data)
+    if not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
+        raise SystemExit(
+            f"error: {args.data}'s frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s"
+        )
     names = ["constant_velocity", *args.methods]
     errors = {name: {h: {"translation": [], "rotation": []} for h in HORIZONS} for name in names}
     kept = {method: [0, 0] for method in args.methods if method != "alone"}

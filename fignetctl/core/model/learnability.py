@@ -177,9 +177,8 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
 
 
 def regime_errors(simulator, scenes, radii=()) -> dict:
-    """The `rigid_corrections` errors of a model split by the regime the recording has each vertex's object in over the
-    step (`training.object_regimes`), in
-    millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
+    """The `rigid_corrections` errors of a model split by the regime the recording has each
+    vertex's object in over the step (`training.object_regimes`), in millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
     "error_rms_mm": {"position": of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
     the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls
     down), "error_share": of the squared error over all regimes}}. Small errors on calm objects
@@ -213,11 +212,10 @@ def regime_errors(simulator, scenes, radii=()) -> dict:
         if velocity_state:
             dynamic = ~scene.geometry.static
             object_labels.append(regimes[dynamic])
-            for part, now, fall in (
-                ("linear", scene.velocities[t], gravity * scene.dt),
-                ("angular", scene.angular_velocities[t], 0.0),
+            for part, column, now, fall in (
+                ("linear", 2, scene.velocities[t], gravity * scene.dt),
+                ("angular", 3, scene.angular_velocities[t], 0.0),
             ):
-                column = 2 if part == "linear" else 3
                 changes[part][0].append((step[column] - now - fall)[dynamic])
                 changes[part][1].append((recorded[column] - now - fall)[dynamic])
     label, error, target = np.concatenate(labels), np.concatenate(errors), np.concatenate(targets)

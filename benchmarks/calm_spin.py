@@ -7,8 +7,8 @@ network alone; with every object whose step the network itself leaves calm (its 
 changes by free fall's within `training.CALM_TOLERANCE`, or it ends at rest) keeping its spin
 (orientation advanced at its angular velocity, angular velocity unchanged; translation the
 network's), `own`; and the same wherever the recording's step from that frame is calm
-(`training.object_regimes`: free fall or at rest), `oracle`, an upper bound that reads the
-recording. Constant velocity is beside them, and the paired difference from the network alone
+(`training.object_regimes`: free fall or at rest), `oracle`, which reads the recording as no
+model could. Constant velocity is beside them, and the paired difference from the network alone
 per trajectory with a 95 % bootstrap interval.
 
     python benchmarks/calm_spin.py benchmarks/results/velocity-continued-gpu-400-steps/model.pt \

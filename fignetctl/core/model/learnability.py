@@ -178,8 +178,9 @@ def rigid_fraction_unexplained(simulator, scenes) -> dict:
 
 def regime_errors(simulator, scenes, radii=()) -> dict:
     """The `rigid_corrections` errors of a model split by the regime the recording has each
-    vertex's object in over the step (`training.object_regimes`), in millimetres per frame: {regime: {"share": of the vertex-frames, "target_rms_mm" and
-    "error_rms_mm": {"position": of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
+    vertex's object in over the step (`training.object_regimes`), in millimetres per frame:
+    {regime: {"share": of the vertex-frames, "target_rms_mm" and "error_rms_mm": {"position":
+    of |a_x|, "velocity": of |a_u| (velocity state)}, "bias_mm":
     the mean error of the last correction (a_u, else a_x) upwards (negative: it pulls
     down), "error_share": of the squared error over all regimes}}. Small errors on calm objects
     are what a rollout adds up frame after frame; on impacts they are what the loss is made of.

@@ -8,8 +8,9 @@ changes by free fall's within `training.CALM_TOLERANCE`, or it ends at rest) kee
 (orientation advanced at its angular velocity, angular velocity unchanged; translation the
 network's), `own`; and the same wherever the recording's step from that frame is calm
 (`training.object_regimes`: free fall or at rest), `oracle`, which reads the recording as no
-model could. Constant velocity is beside them, and the paired difference from the network alone
-per trajectory with a 95 % bootstrap interval.
+model could. Constant velocity is beside them, and each against the network alone as `evaluate`
+compares (`evaluation.compare`: the rotation error's difference, with a 95 % bootstrap interval
+over trajectories).
 
     python benchmarks/calm_spin.py benchmarks/results/velocity-continued-gpu-400-steps/model.pt \
         data/movi-b-test.h5 -o calm-spin.json
@@ -23,7 +24,7 @@ import numpy as np
 
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
-from fignetctl.core.model.evaluation import constant_velocity_baseline, errors_at
+from fignetctl.core.model.evaluation import compare, constant_velocity_baseline, errors_at, summarize_errors
 from fignetctl.core.model.rollout import rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.model.training import CALM_TOLERANCE, REGIMES, object_regimes
@@ -92,14 +93,6 @@ def rollouts(simulator, scene, methods, steps):
     return runs, kept
 
 
-def paired_difference(values, reference, resamples=2000, seed=0):
-    """Mean over trajectories of values − reference, with a 95 % bootstrap interval."""
-    difference = np.asarray(values) - np.asarray(reference)
-    rng = np.random.default_rng(seed)
-    means = [difference[rng.integers(0, len(difference), len(difference))].mean() for _ in range(resamples)]
-    return float(difference.mean()), [float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -121,7 +114,7 @@ def main() -> None:
             f"error: {args.data}'s frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s"
         )
     names = ["constant_velocity", *args.methods]
-    errors = {name: {h: {"translation": [], "rotation": []} for h in HORIZONS} for name in names}
+    records = {name: {horizon: [] for horizon in HORIZONS} for name in names}
     kept = {method: [0, 0] for method in args.methods if method != "alone"}
     cache = {}
     for key in list(data.trajectories)[: args.n]:
@@ -133,25 +126,15 @@ def main() -> None:
         for name, (positions, quaternions) in runs.items():
             for horizon in HORIZONS:
                 translation, rotation = errors_at(scene, positions, quaternions, horizon)
-                errors[name][horizon]["translation"].append(translation)
-                errors[name][horizon]["rotation"].append(rotation)
+                records[name][horizon].append({"translation": translation, "rotation": rotation})
         print(key, flush=True)
     result = {"model": args.model, "data": args.data, "trajectories": args.n, "methods": {}}
     for name in names:
         result["methods"][name] = {}
         for horizon in HORIZONS:
-            cell = errors[name][horizon]
-            rotations = [float(r.mean()) for r in cell["rotation"]]
-            figures = {
-                "translation_rmse_m": float(np.sqrt(np.mean(np.concatenate(cell["translation"]) ** 2))),
-                "rotation_mean_deg": float(np.concatenate(cell["rotation"]).mean()),
-                "per_trajectory_rotation_deg": rotations,
-            }
-            if "alone" in errors and name != "alone":
-                alone = [float(r.mean()) for r in errors["alone"][horizon]["rotation"]]
-                figures["rotation_vs_alone_deg"], figures["rotation_vs_alone_deg_95"] = paired_difference(
-                    rotations, alone
-                )
+            figures = summarize_errors(records[name][horizon])
+            if "alone" in records and name != "alone":
+                figures["against_alone"] = compare(records[name][horizon], records["alone"][horizon])
             result["methods"][name][f"{horizon}_steps"] = figures
         if name in kept:
             result["methods"][name]["kept_share"] = kept[name][0] / max(kept[name][1], 1)
@@ -160,11 +143,14 @@ def main() -> None:
         for horizon in HORIZONS:
             cell = figures[f"{horizon}_steps"]
             paired = ""
-            if "rotation_vs_alone_deg" in cell:
-                low, high = cell["rotation_vs_alone_deg_95"]
-                paired = f" ({cell['rotation_vs_alone_deg']:+.2f}° [{low:+.2f}, {high:+.2f}] vs alone)"
+            if "against_alone" in cell:
+                against = cell["against_alone"]
+                low, high = against["rotation_error_difference_deg_95"]
+                paired = (
+                    f" ({against['rotation_error_difference_deg']:+.2f}° [{low:+.2f}, {high:+.2f}] vs alone)"
+                )
             cells.append(
-                f"{horizon} steps {cell['translation_rmse_m']:.3f} m / {cell['rotation_mean_deg']:.2f}°{paired}"
+                f"{horizon} steps {cell['translation_rmse_m']:.3f} m / {cell['rotation_error_deg']:.2f}°{paired}"
             )
         share = f", kept {figures['kept_share']:.3f} of object-steps" if "kept_share" in figures else ""
         print(f"{name:18s} " + "; ".join(cells) + share)

@@ -65,10 +65,3 @@ def test_an_object_the_network_kicks_keeps_the_networks_spin():
     for value, wanted in zip(predicted, expected):
         np.testing.assert_array_equal(value, wanted)
     assert proxy.kept == 0
-
-
-def test_the_paired_difference_and_its_interval():
-    mean, (low, high) = calm_spin.paired_difference([1.0, 2.0, 3.0, 4.0], [0.0, 1.0, 2.0, 3.0])
-    assert mean == 1.0 and low == high == 1.0
-    mean, (low, high) = calm_spin.paired_difference([0.0, 2.0, 0.0, 2.0], [1.0, 1.0, 1.0, 1.0])
-    assert mean == 0.0 and -1.0 <= low < 0.0 < high <= 1.0

@@ -43,6 +43,9 @@ def train(dataset, output, init_from, log_csv, rerun_path, overwrite, **settings
       fignetctl train train.h5 -o model.pt --steps 20000 --resume --time-limit 9   # exit 75: not done yet
       fignetctl train train.h5 -o tuned.pt --steps 3000 --init-from model.pt --learning-rate 2e-4 2e-5
     """
+    from fignetctl.core.model.training import keep_heap_pages
+
+    keep_heap_pages()  # this process trains: its large tensors reuse pages (docs/simulator.md, "Memory")
     replace = overwrite or settings["resume"]  # a resumed run's outputs go on
     path, log_csv = (
         options.output_path(output, replace),

@@ -677,20 +677,44 @@ class Trainer:
 
 
 HEAP_GROWTH = 2.0
-"""A trainer's heap is trimmed again once its resident memory reaches this many times what it
-held after the last trim (HeapTrimmer)."""
+"""A trainer's heap is trimmed once its resident memory reaches this many times what it held
+after its first step (HeapTrimmer)."""
+
+M_TRIM_THRESHOLD, M_MMAP_MAX = -1, -4
+"""glibc's `mallopt` parameters (malloc.h)."""
 
 
 @functools.cache
-def _malloc_trim():
-    """glibc's `malloc_trim`, or None where the C library is not glibc."""
+def _glibc(name):
+    """The glibc function `name` (`malloc_trim`, `mallopt`), or None where the C library is not
+    glibc."""
     import ctypes
     import ctypes.util
 
     try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+        return getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
     except (OSError, AttributeError):
         return None
+
+
+def _malloc_trim():
+    return _glibc("malloc_trim")
+
+
+def keep_heap_pages() -> bool:
+    """Make glibc serve this process's blocks from its heap and keep the pages they free.
+
+    By default glibc maps every block over its mmap threshold (at most 32 MB) on its own pages
+    and unmaps it when freed, and hands the heap's free top back to the system; a step of 64
+    scenes allocates and frees many tensors of tens of MB, and every page of each is faulted in
+    afresh: a trainer took about 90,000 page faults a second and spent 40 % of its time in the
+    kernel. With no mapped blocks and no automatic trim, a step reuses the pages the last step
+    touched; HeapTrimmer bounds what that keeps (docs/simulator.md, "Memory"). For training
+    processes, called by `fignetctl train`. Returns whether glibc took both settings."""
+    mallopt = _glibc("mallopt")
+    if mallopt is None:
+        return False
+    return bool(mallopt(M_MMAP_MAX, 0)) & bool(mallopt(M_TRIM_THRESHOLD, 2**31 - 1))
 
 
 def resident_bytes() -> int | None:
@@ -710,23 +734,28 @@ def return_freed_memory() -> None:
 
 
 class HeapTrimmer:
-    """Keeps a trainer's resident memory near what it uses. Every step's graphs differ in size,
-    and glibc keeps the blocks they freed: a trainer of 64 scenes grew by about 0.5 GB a step
-    until the kernel killed it. The trimmed pages come back as page faults in the next steps,
-    so `step()` trims only when resident memory has grown to HEAP_GROWTH times what it was
-    after the last trim: rarely at small batches, every step or two at 64 scenes, where it
-    costs time (docs/simulator.md, "Memory")."""
+    """Keeps a trainer's resident memory within HEAP_GROWTH times what it held after its first
+    step. Every step's graphs differ in size, and glibc keeps the blocks they freed for reuse
+    that other sizes do not always find: with glibc's defaults a trainer of 64 scenes grew by
+    about 0.5 GB a minute until the kernel killed it. A trimmed page that a later step touches
+    comes back as a page fault, so `step()` trims only past the limit, not to what the trainer
+    holds between steps (docs/simulator.md, "Memory")."""
 
     def __init__(self, growth: float = HEAP_GROWTH):
         self.growth, self.limit = growth, 0
 
     def step(self) -> bool:
-        """After a training step: trim if memory grew past the limit. Returns whether it did."""
+        """After a training step: trim if memory grew past the limit (set at the first step).
+        Returns whether it did."""
         resident = resident_bytes()
-        if resident is None or _malloc_trim() is None or resident <= self.limit:
+        if resident is None or _malloc_trim() is None:
+            return False
+        if not self.limit:
+            self.limit = self.growth * resident
+            return False
+        if resident <= self.limit:
             return False
         return_freed_memory()
-        self.limit = self.growth * (resident_bytes() or resident)
         return True
 
 

@@ -226,9 +226,9 @@ class LearnedSimulator(nn.Module):
         """What the network must output to reach x_{t+1} (and u_{t+1} for a velocity state) from
         the history: normalized `acceleration_targets`, less `free_motion` ((n, 6), a
         free-motion model's `free_motion_of`) when given, a (n, output_size) float32 tensor."""
-        targets = acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities)
-        if free_motion is not None:
-            targets = targets - free_motion
+        targets = acceleration_targets(
+            next_vertices, vertices_previous, vertices_now, next_vertex_velocities, free_motion
+        )
         return self.normalized_targets(torch.from_numpy(targets.astype(np.float32)), accumulate)
 
     def network_acceleration(self, graph: MultiGraph) -> torch.Tensor:
@@ -264,9 +264,7 @@ class LearnedSimulator(nn.Module):
         `inverse_postprocess`) when given; float64 numpy."""
         acceleration = self.acceleration_normalizer.inverse(normalized_acceleration)
         acceleration = acceleration.detach().cpu().double().numpy()
-        if free_motion is not None:
-            acceleration = acceleration + free_motion
-        return integrate(acceleration, vertices_previous, vertices_now)
+        return integrate(acceleration, vertices_previous, vertices_now, free_motion)
 
     def step_velocities(self, positions, quaternions, velocities):
         """(O, 3) x2 linear and angular velocities in metres and radians per step at frame t:
@@ -332,10 +330,8 @@ class LearnedSimulator(nn.Module):
         device = next(self.parameters()).device
         acceleration = self.network_acceleration(scene_graph.graph.to(device))
         acceleration = acceleration[: scene_graph.num_dynamic_vertex_nodes].detach().cpu().double().numpy()
-        if free_motion is not None:
-            acceleration = acceleration + free_motion
         next_vertices, next_vertex_velocities = integrate(
-            acceleration, *scene_graph.dynamic_vertex_positions[:2]
+            acceleration, *scene_graph.dynamic_vertex_positions[:2], free_motion
         )
         positions, quaternions = rigid_poses_from_vertices(
             geometry, next_vertices, static_positions, static_quaternions
@@ -379,18 +375,22 @@ def rotations_about_gravity(count, gravity=None) -> torch.Tensor:
     return torch.from_numpy(turns.astype(np.float32))
 
 
-def acceleration_targets(next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None):
-    """The raw targets that `integrate` turns back into x_{t+1} (and u_{t+1}).
+def acceleration_targets(
+    next_vertices, vertices_previous, vertices_now, next_vertex_velocities=None, free_motion=None
+):
+    """The raw targets that `integrate` (given the same `free_motion`) turns back into x_{t+1}
+    (and u_{t+1}).
 
     All (n, 3); the vertex velocity is u_t = x_t − x_{t−1} (module docstring).
     returns (n, 3) a_x = x_{t+1} − x_t − u_t, or (n, 6) [a_x, a_u = u_{t+1} − u_t] when
-    next_vertex_velocities is given; float64
+    next_vertex_velocities is given, less `free_motion` ((n, 6) `free_motion_of`) when given;
+    float64
     """
     velocity = np.asarray(vertices_now, np.float64) - vertices_previous
-    position_part = np.asarray(next_vertices, np.float64) - vertices_now - velocity
-    if next_vertex_velocities is None:
-        return position_part
-    return np.concatenate([position_part, np.asarray(next_vertex_velocities, np.float64) - velocity], axis=1)
+    targets = np.asarray(next_vertices, np.float64) - vertices_now - velocity
+    if next_vertex_velocities is not None:
+        targets = np.concatenate([targets, np.asarray(next_vertex_velocities, np.float64) - velocity], axis=1)
+    return targets if free_motion is None else targets - free_motion
 
 
 def free_motion_of(config, geometry, vertices_now, centres, step_velocities) -> np.ndarray | None:
@@ -431,11 +431,14 @@ def free_motion_corrections(vertices, vertex_object, centres, angular, gravity_s
     return np.concatenate([position, velocity], axis=1)
 
 
-def integrate(acceleration, vertices_previous, vertices_now):
-    """x_{t+1} = x_t + u_t + a_x, and u_{t+1} = u_t + a_u when the acceleration has 6 columns.
+def integrate(acceleration, vertices_previous, vertices_now, free_motion=None):
+    """x_{t+1} = x_t + u_t + a_x, and u_{t+1} = u_t + a_u when the acceleration has 6 columns,
+    with `free_motion` ((n, 6) `free_motion_of`) added to the acceleration when given.
 
     acceleration : (n, 3) or (n, 6); vertices : (n, 3). Returns x_{t+1} and u_{t+1} or None.
     """
+    if free_motion is not None:
+        acceleration = acceleration + free_motion
     velocity = np.asarray(vertices_now, np.float64) - vertices_previous
     next_vertices = vertices_now + velocity + acceleration[:, :3]
     if acceleration.shape[1] == 3:

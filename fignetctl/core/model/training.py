@@ -247,10 +247,8 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
             scene.velocities[frame + 1] * scene.dt,
             scene.angular_velocities[frame + 1] * scene.dt,
         )
-    targets = acceleration_targets(after, previous, now, next_velocities)
     free_motion = free_motion_of(simulator_config, geometry, now, positions[1], velocities)
-    if free_motion is not None:
-        targets = targets - free_motion
+    targets = acceleration_targets(after, previous, now, next_velocities, free_motion)
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
 
 

@@ -109,6 +109,14 @@ def test_targets_and_integration_are_exact_inverses():
         np.testing.assert_allclose(next_vertices, after, atol=1e-12)
         if velocities is not None:
             np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-12)
+    free_motion = rng.normal(size=(20, 6))  # what a free-motion model's output is added to
+    targets = acceleration_targets(after, previous, now, next_velocity, free_motion)
+    np.testing.assert_allclose(
+        targets + free_motion, acceleration_targets(after, previous, now, next_velocity)
+    )
+    next_vertices, next_velocities = integrate(targets, previous, now, free_motion)
+    np.testing.assert_allclose(next_vertices, after, atol=1e-12)
+    np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-12)
 
 
 def test_postprocess_undoes_inverse_postprocess():
@@ -118,6 +126,11 @@ def test_postprocess_undoes_inverse_postprocess():
     normalized = simulator.inverse_postprocess(after, previous, now, next_velocity, accumulate=True)
     next_vertices, next_velocities = simulator.postprocess(normalized, previous, now)
     np.testing.assert_allclose(next_vertices, after, atol=1e-6)  # float32 targets
+    np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-6)
+    free_motion = rng.normal(scale=0.1, size=(30, 6))
+    normalized = simulator.inverse_postprocess(after, previous, now, next_velocity, free_motion=free_motion)
+    next_vertices, next_velocities = simulator.postprocess(normalized, previous, now, free_motion)
+    np.testing.assert_allclose(next_vertices, after, atol=1e-6)
     np.testing.assert_allclose(next_velocities, next_velocity, atol=1e-6)
 
 

@@ -250,6 +250,26 @@ class RestartedPyBullet:
         moving = nudged_rollout(self.simulator, specs, trajectory, int(num_steps), nudge, rng)
         return self._with_static(trajectory, moving, int(num_steps))
 
+    def frame(self, trajectory_id: str, positions, quaternions, velocities, angular_velocities) -> tuple:
+        """One frame of PyBullet in a fresh world of the trajectory's scene, its dynamic objects
+        put in the given state (restarted_frame); the floor stays where make-dataset put it.
+
+        positions (O, 3), quaternions (O, 4) w x y z, velocities, angular_velocities (O, 3) m/s
+            and rad/s, every object (the static rows are not read)
+        returns the four arrays one frame later, float64, static rows as given
+        """
+        trajectory = self._trajectory(trajectory_id, "finite-difference")
+        specs = object_specs(trajectory, self.config, self.asset_index, self.simulator)
+        given = [
+            np.array(values, np.float64)
+            for values in (positions, quaternions, velocities, angular_velocities)
+        ]
+        bodies = self.simulator.build_scene(specs)
+        after = restarted_frame(self.simulator, bodies, specs, *(values[1:] for values in given))
+        for values, moved in zip(given, after):
+            values[1:] = moved
+        return tuple(given)
+
     def _with_static(self, trajectory, moving, num_steps: int) -> tuple:
         """The dynamic objects' rolled-out poses with the static ones at frame 1's (frames 0-1
         the truth's)."""

@@ -89,6 +89,24 @@ def test_one_velocity_restart_reproduces_the_recorded_next_frame(tosses, shapes)
         assert not np.array_equal(truth.positions[2, 1:], truth.positions[1, 1:])  # they did move
 
 
+def test_one_frame_from_a_given_state_is_the_restarted_rollouts_step(tosses, shapes):
+    """`frame` from frame 1's recorded state is the velocity restart's frame 2; the floor's row
+    comes back as given, whatever it held."""
+    key = "00000"
+    truth = tosses.trajectories[key]
+    expected = ceilings.ceiling_rollout(tosses, key, "velocity", 1, assets=shapes)
+    given = [np.array(values[1], np.float64) for values in (truth.positions, truth.quaternions)]
+    given[0][0] = [7.0, 7.0, 7.0]
+    velocities = [np.array(values[1], np.float64) for values in (truth.velocities, truth.angular_velocities)]
+    with ceilings.RestartedPyBullet(tosses, shapes) as physics:
+        positions, quaternions, linear, angular = physics.frame(key, *given, *velocities)
+    np.testing.assert_array_equal(positions[1:], expected[0][2, 1:])
+    np.testing.assert_array_equal(quaternions[1:], expected[1][2, 1:])
+    np.testing.assert_array_equal(positions[0], [7.0, 7.0, 7.0])
+    np.testing.assert_allclose(linear[1:], truth.velocities[2, 1:], rtol=0, atol=1e-4)
+    assert linear.shape == angular.shape == (truth.num_objects, 3)
+
+
 def test_restarts_keep_the_floor_where_it_is(tosses, shapes):
     key = "00000"
     for state in ceilings.STATES:

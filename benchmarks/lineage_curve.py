@@ -28,6 +28,8 @@ HELD_OUT = "data/movi-b-test.h5"
 MARKS = {"10_steps_m": 0.30, "50_steps_m": 2.0, "rotation_vs_cv_50_steps_deg": -15.0}
 """The issue's marks, network alone on the held-out set: translation RMSE after 10 and 50
 steps, and the rotation error's difference from constant velocity's after 50 steps."""
+PLOT_REACH = 20
+"""The plotted law goes on to the mark, or to this many times the samples so far if that is nearer."""
 
 
 def stage_figures(stage) -> dict:
@@ -104,7 +106,7 @@ def plot(stages, fits, beside, path) -> None:
     ):
         axis.plot(samples, [s[key] for s in stages], "o-", color="C0", label="velocity-state FIGNet*")
         a, b = fits[key]["law"]
-        reach = max(samples.max(), fits[key]["samples_to_mark"] or 0) * 1.3
+        reach = min(max(samples.max(), fits[key]["samples_to_mark"] or 0) * 1.3, samples.max() * PLOT_REACH)
         grid = np.geomspace(samples[fits["first_fitted"]], reach, 50)
         axis.plot(
             grid, a * grid**b, "--", color="C0", alpha=0.6, label=f"power law, last stages (b = {b:.3f})"

@@ -39,5 +39,5 @@ def test_the_stored_lineage_sums_its_samples_and_plots(tmp_path, monkeypatch):
     result = json.loads(output.read_text())
     stages = result["stages"]
     assert [s["samples"] for s in stages] == list(np.cumsum([s["samples_added"] for s in stages]))
-    assert stages[-1]["samples"] == 904_564
+    assert stages[-1]["samples"] == 951_028
     assert result["fits"]["10_steps_m"]["law"][1] < 0 and image.stat().st_size > 10_000

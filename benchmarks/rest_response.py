@@ -55,6 +55,13 @@ def resting_state(positions, quaternions, static):
     return now, quaternions[-1], resting
 
 
+def pushed_velocities(positions, resting, velocity, dt):
+    """(O, 3) linear velocities in m/s: `velocity` (metres per frame) on the resting objects, 0 elsewhere."""
+    linear = np.zeros_like(positions)
+    linear[resting] = velocity / dt
+    return linear
+
+
 def model_step(simulator, geometry, positions, quaternions, resting, velocity, dt):
     """One step of `simulator` with every resting object given `velocity` (metres per frame).
 
@@ -64,9 +71,7 @@ def model_step(simulator, geometry, positions, quaternions, resting, velocity, d
     previous[resting] -= velocity
     given = None
     if simulator.config.uses_velocities:
-        linear = np.zeros_like(positions)
-        linear[resting] = velocity / dt
-        given = (linear, np.zeros_like(positions))
+        given = (pushed_velocities(positions, resting, velocity, dt), np.zeros_like(positions))
     following, _, linear_after, _ = simulator.predict(
         geometry, np.stack([previous, positions, positions]), np.stack([quaternions] * 3), velocities=given
     )
@@ -76,10 +81,12 @@ def model_step(simulator, geometry, positions, quaternions, resting, velocity, d
 
 def physics_step(physics, trajectory_id, positions, quaternions, resting, velocity, dt):
     """`model_step`'s answer from PyBullet (ceilings.RestartedPyBullet.frame), no object spinning."""
-    linear = np.zeros_like(positions)
-    linear[resting] = velocity / dt
     following, _, linear_after, _ = physics.frame(
-        trajectory_id, positions, quaternions, linear, np.zeros_like(positions)
+        trajectory_id,
+        positions,
+        quaternions,
+        pushed_velocities(positions, resting, velocity, dt),
+        np.zeros_like(positions),
     )
     return (following - positions)[resting], linear_after[resting] * dt
 

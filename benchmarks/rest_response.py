@@ -106,7 +106,7 @@ def responses(step, speed=SPEED):
 
 
 def resting_drift(simulator, scene, steps, guards):
-    """(R,) metres each object resting in the scene's last frame has moved after `steps` steps
+    """(R, 3) metres each object resting in the scene's last frame has moved after `steps` steps
     of a rollout that starts from its last two frames (their recorded velocities too)."""
     _, _, resting = resting_state(scene.positions, scene.quaternions, scene.geometry.static)
     last = {
@@ -115,7 +115,25 @@ def resting_drift(simulator, scene, steps, guards):
         if getattr(scene, name) is not None
     }
     positions, _ = rollout(simulator, dataclasses.replace(scene, **last), steps, guards=guards)
-    return np.linalg.norm(positions[-1, resting] - positions[1, resting], axis=1)
+    return positions[-1, resting] - positions[1, resting]
+
+
+def drift_summary(displacements, gravity, steps, guards) -> dict:
+    """Percentiles of how far (R, 3) `displacements` took the resting objects, and how much of
+    it was along gravity (down: positive) and across it."""
+    down = np.asarray(gravity, np.float64) / np.linalg.norm(gravity)
+    along = displacements @ down
+    across = np.linalg.norm(displacements - along[:, None] * down, axis=1)
+    distances = np.linalg.norm(displacements, axis=1)
+    return {
+        "steps": steps,
+        "guards": guards,
+        "objects": int(distances.size),
+        "metres_p10_p50_p90_max": np.percentile(distances, [10, 50, 90, 100]).round(4).tolist(),
+        "objects_within_1cm": int((distances < 0.01).sum()),
+        "down_metres_p10_p50_p90": np.percentile(along, [10, 50, 90]).round(4).tolist(),
+        "across_metres_p10_p50_p90": np.percentile(across, [10, 50, 90]).round(4).tolist(),
+    }
 
 
 def summarise(moved, kept, from_rest) -> dict:
@@ -189,14 +207,7 @@ def main():
                 np.concatenate([row[0] for row in rows]), kept, np.concatenate([row[2] for row in rows])
             )
     if drifts:
-        drifts = np.concatenate(drifts)
-        result["drift"] = {
-            "steps": args.drift_steps,
-            "guards": args.guards,
-            "objects": int(drifts.size),
-            "metres_p10_p50_p90_max": np.percentile(drifts, [10, 50, 90, 100]).round(4).tolist(),
-            "objects_within_1cm": int((drifts < 0.01).sum()),
-        }
+        result["drift"] = drift_summary(np.concatenate(drifts), data.gravity, args.drift_steps, args.guards)
     print(json.dumps({key: value for key, value in result.items() if key in ("summary", "physics", "drift")}))
     write_json(args.out, result)
 

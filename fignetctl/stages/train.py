@@ -96,6 +96,13 @@ class Settings:
         low=0,
         high=1e6,
     )
+    rest_weight: float = setting(
+        0.0,
+        "Extra loss weight of the vertices the recording keeps at rest (or steady), on top of "
+        "--calm-weight: a resting object given a small velocity must stop (docs/simulator.md).",
+        low=0,
+        high=1e6,
+    )
     steps: int = setting(20000, "Total optimiser steps (a resumed run continues to this).", low=1, high=10**9)
     batch_size: int = setting(4, "Scenes per step.", low=1, high=4096)
     pushforward: int = setting(
@@ -189,6 +196,7 @@ def configs(settings: Settings, device: str = "cpu"):
         pushforward_model=settings.pushforward_model or "",
         frame_sampling=settings.frame_sampling,
         calm_weight=settings.calm_weight,
+        rest_weight=settings.rest_weight,
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,

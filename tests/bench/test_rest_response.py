@@ -101,4 +101,17 @@ def test_the_drift_is_how_far_a_resting_object_has_moved_after_the_steps():
     trajectory.velocities[-2:] = 0.0
     scene = scene_from_trajectory(data, "00000", SimulatorConfig())
     guards = guards_for(DT, data.gravity, False, False, False)
-    np.testing.assert_allclose(rest_response.resting_drift(_Creep(), scene, 7, guards), [0.007], atol=1e-9)
+    drift = rest_response.resting_drift(_Creep(), scene, 7, guards)
+    np.testing.assert_allclose(drift, [[0.007, 0.0, 0.0]], atol=1e-9)
+
+
+def test_the_drift_summary_splits_the_displacements_along_and_across_gravity():
+    displacements = np.array([[0.03, 0.04, 0.0], [0.0, 0.0, -0.02], [0.0, 0.0, 0.005]])
+    summary = rest_response.drift_summary(displacements, (0.0, 0.0, -10.0), 60, False)
+    assert summary["objects"] == 3 and summary["objects_within_1cm"] == 1
+    assert summary["metres_p10_p50_p90_max"][1:] == [0.02, 0.044, 0.05]
+    assert summary["down_metres_p10_p50_p90"][1] == 0.0  # sinking 2 cm counts +, rising 5 mm -
+    np.testing.assert_allclose(
+        np.percentile([0.0, 0.02, -0.005], [10, 50, 90]).round(4), summary["down_metres_p10_p50_p90"]
+    )
+    assert summary["across_metres_p10_p50_p90"][1] == 0.0 and summary["across_metres_p10_p50_p90"][2] == 0.04

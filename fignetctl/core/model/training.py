@@ -98,6 +98,11 @@ class TrainingSettings:
     at rest from frame t to t + 1 (`calm_vertices`): their loss weighs 1 + calm_weight. Their
     targets are small and simple, so under a loss that impacts dominate they are fitted
     loosely, and a rollout adds those small errors up frame after frame."""
+    rest_weight: float = 0.0
+    """Extra loss weight of the dynamic vertices whose object the recording keeps at rest (or
+    sliding or rolling steadily) from frame t to t + 1 (`object_regimes`), on top of
+    `calm_weight`: with the velocity noise on its input, such an example is a resting object
+    given a small velocity and told to stop, which an MSE dominated by impacts hardly sees."""
     normalizer_accumulation_steps: int = 500
     """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
@@ -382,7 +387,7 @@ def pushforward_examples(simulator, scenes, example_config, config: TrainingSett
         else:
             examples.append(pushforward_example(simulator, scene, frame, config, example_config))
         weights.append(row_weights(scene, frame, example_config, config))
-    return batch_of(examples, weights if config.calm_weight else None)
+    return batch_of(examples, weights if weighs_rows(config) else None)
 
 
 class TrainingBatches(torch.utils.data.Dataset):
@@ -415,7 +420,7 @@ class TrainingBatches(torch.utils.data.Dataset):
             weights.append(
                 weight * row_weights(self.scenes[scene], frame, self.simulator_config, self.config)
             )
-        weighted = self.config.frame_sampling != "uniform" or self.config.calm_weight
+        weighted = self.config.frame_sampling != "uniform" or weighs_rows(self.config)
         batch = batch_of(examples, weights if weighted else None)
         if self.pushforward_simulator is not None:  # only with pushforward examples to start
             with torch_threads(1):  # as in a worker: the same sums, so the same batch in any process
@@ -450,14 +455,24 @@ def fixed_pushforward_model(config: TrainingSettings, simulator_config):
     return model
 
 
+def weighs_rows(config: TrainingSettings) -> bool:
+    """Whether `row_weights` gives some vertices more than 1."""
+    return bool(config.calm_weight or config.rest_weight)
+
+
 def row_weights(scene, frame, simulator_config, config: TrainingSettings):
     """The loss weights of the dynamic vertices of the example at `frame`: 1, or (Vd,) with
-    1 + calm_weight on `calm_vertices`."""
-    if not config.calm_weight:
+    1 + calm_weight on `calm_vertices` and rest_weight more on those at rest."""
+    if not weighs_rows(config):
         return 1.0
-    return 1.0 + config.calm_weight * calm_vertices(
-        scene, frame, simulator_config.gravity, simulator_config.uses_velocities
+    regimes = object_regimes(scene, frame, simulator_config.gravity, simulator_config.uses_velocities)
+    weights = (
+        1.0
+        + config.calm_weight * (regimes < REGIMES.index("impact"))
+        + config.rest_weight * (regimes == REGIMES.index("at rest or steady"))
     )
+    geometry = scene.geometry
+    return weights[geometry.vertex_object[geometry.dynamic_vertices]]
 
 
 def batch_of(examples, weights=None) -> dict:

@@ -1,5 +1,5 @@
-"""`calm_weight`: extra loss weight on the vertices of objects that the recording moves in free
-fall or keeps at rest, where small errors add up over a rollout."""
+"""`calm_weight` and `rest_weight`: extra loss weight on the vertices of objects that the
+recording moves in free fall or keeps at rest, where small errors add up over a rollout."""
 
 import dataclasses
 
@@ -17,6 +17,7 @@ from fignetctl.core.model.training import (
     calm_vertices,
     make_trainer,
     object_regimes,
+    row_weights,
     simulator_config_for,
 )
 from fignetctl.core.trajectory import write_trajectories
@@ -240,3 +241,22 @@ def test_step_response_is_the_slope_through_zero():
         "error_rms": 0.0,
         "captured": None,
     }
+
+
+def test_rest_weight_weighs_resting_rows_on_top_of_the_calm_weight():
+    data = box_drop_file(frames=12, spin=0.0, height=0.5)
+    positions = np.array(data.trajectories["00000"].positions)
+    positions[:, 1] = positions[0, 1]
+    resting = _scene(_edited(data, positions=positions, velocities=np.zeros((12, 2, 3), np.float32)))
+    bouncing = _scene(_bouncing_box(impact=6))
+    rest = TrainingSettings(rest_weight=100.0)
+    both = dataclasses.replace(rest, calm_weight=4.0)
+    for frame in range(1, 10):
+        assert (row_weights(resting, frame, VELOCITIES, rest) == 101.0).all()
+        assert (row_weights(resting, frame, VELOCITIES, both) == 105.0).all()
+        falling_or_bouncing = 1.0 if frame == 5 else 5.0  # frame 5 -> 6 is the bounce
+        assert (row_weights(bouncing, frame, VELOCITIES, rest) == 1.0).all()
+        assert (row_weights(bouncing, frame, VELOCITIES, both) == falling_or_bouncing).all()
+    assert row_weights(resting, 1, VELOCITIES, TrainingSettings()) == 1.0
+    batch = TrainingBatches([resting, bouncing], VELOCITIES, dataclasses.replace(rest, batch_size=8))[0]
+    assert set(batch["weights"].unique().tolist()) <= {1.0, 101.0}

@@ -306,12 +306,17 @@ def object_regimes(scene, frame, gravity, velocity_state=True) -> np.ndarray:
     return regime
 
 
+def vertex_regimes(scene, frame, gravity, velocity_state=True) -> np.ndarray:
+    """(Vd,) `object_regimes` of the object of each of the scene's dynamic vertices."""
+    geometry = scene.geometry
+    regimes = object_regimes(scene, frame, gravity, velocity_state)
+    return regimes[geometry.vertex_object[geometry.dynamic_vertices]]
+
+
 def calm_vertices(scene, frame, gravity, velocity_state=True) -> np.ndarray:
     """(Vd,) bool of the scene's dynamic vertices: whether the recording moves their object from
     frame t = `frame` to t + 1 in free fall or keeps it at rest (`object_regimes`)."""
-    calm = object_regimes(scene, frame, gravity, velocity_state) < REGIMES.index("impact")
-    geometry = scene.geometry
-    return calm[geometry.vertex_object[geometry.dynamic_vertices]]
+    return vertex_regimes(scene, frame, gravity, velocity_state) < REGIMES.index("impact")
 
 
 FRAME_SAMPLINGS = ("uniform", "motion")
@@ -465,14 +470,12 @@ def row_weights(scene, frame, simulator_config, config: TrainingSettings):
     1 + calm_weight on `calm_vertices` and rest_weight more on those at rest."""
     if not weighs_rows(config):
         return 1.0
-    regimes = object_regimes(scene, frame, simulator_config.gravity, simulator_config.uses_velocities)
-    weights = (
+    regimes = vertex_regimes(scene, frame, simulator_config.gravity, simulator_config.uses_velocities)
+    return (
         1.0
         + config.calm_weight * (regimes < REGIMES.index("impact"))
         + config.rest_weight * (regimes == REGIMES.index("at rest or steady"))
     )
-    geometry = scene.geometry
-    return weights[geometry.vertex_object[geometry.dynamic_vertices]]
 
 
 def batch_of(examples, weights=None) -> dict:

@@ -1,6 +1,7 @@
 """Options and parameter types shared by the commands, defined once."""
 
 import math
+import typing
 from pathlib import Path
 
 import click
@@ -190,8 +191,10 @@ def _settings_option(field, kind, flags=(), **changes):
         param_type = click.IntRange(low, high, min_open=meta["low_open"])
     elif kind is float:
         param_type = FiniteFloatRange(low, high, min_open=meta["low_open"])
+    elif _float_tuple(kind) and "callback" not in changes:
+        param_type = (FiniteFloatRange(low, high, min_open=meta["low_open"]),) * len(typing.get_args(kind))
     else:
-        param_type = kind if kind is str else None  # others (tuples) are parsed by an override
+        param_type = kind if kind is str else None  # other tuples are parsed by an override
     arguments = {
         "type": param_type,
         "default": field.default,
@@ -200,6 +203,11 @@ def _settings_option(field, kind, flags=(), **changes):
         "help": meta["help"],
     }
     return click.option(*flags, flag, field.name, **{**arguments, **changes})
+
+
+def _float_tuple(kind) -> bool:
+    """A fixed-length tuple of floats (`tuple[float, float]`): each number gets the field's bounds."""
+    return typing.get_origin(kind) is tuple and set(typing.get_args(kind)) == {float}
 
 
 def path_option(*decls, folder=False, exists=False, **kwargs):

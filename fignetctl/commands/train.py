@@ -13,10 +13,7 @@ FILE = click.Path(dir_okay=False)
 @click.option(
     "-o", "--output", type=FILE, required=True, help="Model file (.pt), checkpointed while training."
 )
-@options.settings_options(
-    stage.Settings,
-    learning_rate={"type": (options.FiniteFloatRange(min=0, min_open=True),) * 2, "metavar": "INITIAL FINAL"},
-)
+@options.settings_options(stage.Settings)
 @click.option(
     "--init-from",
     type=FILE,

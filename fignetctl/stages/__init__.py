@@ -36,7 +36,7 @@ def setting(default, help: str, *, low=None, high=None, low_open=False, choices=
 
 def check(settings) -> None:
     """Refuse a Settings whose values lie outside their declared bounds (Python callers get the
-    command line's checks): NaN and ±inf are refused for every number."""
+    command line's checks; a tuple's numbers each): NaN and ±inf are refused for every number."""
     for field in dataclasses.fields(settings):
         value, meta = getattr(settings, field.name), field.metadata
         if value is None or "help" not in meta:
@@ -45,12 +45,14 @@ def check(settings) -> None:
             raise SettingError(
                 f"{field.name} = {value!r}: choose one of {', '.join(map(str, meta['choices']))}"
             )
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
+        for number in value if isinstance(value, tuple) else (value,):
+            if isinstance(number, bool) or not isinstance(number, (int, float)):
+                continue
             low, high = meta["low"], meta["high"]
             if (
-                not math.isfinite(value)
-                or (low is not None and (value <= low if meta["low_open"] else value < low))
-                or (high is not None and value > high)
+                not math.isfinite(number)
+                or (low is not None and (number <= low if meta["low_open"] else number < low))
+                or (high is not None and number > high)
             ):
                 raise SettingError(f"{field.name} = {value!r} is outside {_interval(meta)}")
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from pathlib import Path
 
@@ -75,6 +74,13 @@ class Settings:
         "The network predicts what contact changes of each object's free motion (gravity, constant "
         "spin), which is computed and added (velocity state; docs/simulator.md).",
     )
+    noise: tuple[float, float] = setting(
+        (0.003, 0.003),
+        "Standard deviations of the per-object jitter on frame t's pose, translation (m) and rotation "
+        "(rad); the velocity state's velocity gets the same, per frame (docs/simulator.md).",
+        low=0,
+        metavar="METRES RADIANS",
+    )
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
@@ -125,6 +131,7 @@ class Settings:
         "1e-3 -> 1e-4 fitted held-out data worse at batch 8: docs/simulator.md).",
         low=0,
         low_open=True,
+        metavar="INITIAL FINAL",
     )
     workers: int = setting(
         1, "Processes that build the training graphs (0: build them here).", low=0, high=256
@@ -197,6 +204,8 @@ def configs(settings: Settings, device: str = "cpu"):
         frame_sampling=settings.frame_sampling,
         calm_weight=settings.calm_weight,
         rest_weight=settings.rest_weight,
+        noise_translation_std=settings.noise[0],
+        noise_rotation_std=settings.noise[1],
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,
@@ -232,9 +241,9 @@ def run(
     check(settings)
     if settings.rerun_connect is not None:
         viewer_address(settings.rerun_connect)  # a bad address is refused before training, not after
-    rates = settings.learning_rate
-    if len(rates) != 2 or not all(isinstance(r, (int, float)) and math.isfinite(r) and r > 0 for r in rates):
-        raise SettingError(f"learning_rate = {settings.learning_rate!r}: give two positive numbers")
+    for name in ("learning_rate", "noise"):
+        if len(getattr(settings, name)) != 2:
+            raise SettingError(f"{name} = {getattr(settings, name)!r}: give two numbers")
     if settings.pushforward >= settings.batch_size:
         raise SettingError(
             f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "

@@ -80,6 +80,25 @@ def test_train_learning_rate_option_sets_the_schedule(trained, tmp_path):
     assert result.exit_code == 2 and "--learning-rate" in result.output
 
 
+def test_train_noise_option_sets_the_jitter_and_refuses_negative_or_nan(trained, tmp_path):
+    from fignetctl.core.model.checkpoint import read_checkpoint_payload
+    from fignetctl.errors import SettingError
+    from fignetctl.stages import train as stage
+
+    _, data, _ = trained
+    out = tmp_path / "noisy.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "1"]
+    result = CliRunner().invoke(cli, [*args, "--noise", "0.01", "0.02"])
+    assert result.exit_code == 0, result.output
+    config = json.loads(read_checkpoint_payload(out)["training_state"]["training_config"])
+    assert (config["noise_translation_std"], config["noise_rotation_std"]) == (0.01, 0.02)
+    refused = CliRunner().invoke(cli, [*args, "--noise", "-0.01", "0", "--overwrite"])
+    assert refused.exit_code == 2 and "--noise" in refused.output
+    with pytest.raises(SettingError, match="noise"):
+        stage.run(data, tmp_path / "nan.pt", stage.Settings(size="tiny", steps=1, noise=(0.01, float("nan"))))
+    assert not (tmp_path / "nan.pt").exists()
+
+
 @pytest.mark.parametrize(
     "option, field, refusal",
     [

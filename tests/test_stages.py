@@ -30,11 +30,24 @@ class Example:
     mode: str = setting("a", "Which.", choices=("a", "b"))
     video: bool = setting(True, "Write a video.")
     limit: float | None = setting(None, "An optional bound.", low=0)
+    pair: tuple[float, float] = setting((1.0, 2.0), "Two numbers.", low=0)
 
 
 @pytest.mark.parametrize(
     "values",
-    [{"count": 0}, {"count": 11}, {"scale": 0.0}, {"scale": math.nan}, {"scale": math.inf}, {"mode": "c"}],
+    [
+        {"count": 0},
+        {"count": 11},
+        {"scale": 0.0},
+        {"scale": math.nan},
+        {"scale": math.inf},
+        {"mode": "c"},
+        {"pair": (1.0,)},
+        {"pair": (1.0, 2.0, 3.0)},
+        {"pair": 1.0},
+        {"pair": (1.0, math.nan)},
+        {"pair": (-1.0, 1.0)},
+    ],
 )
 def test_check_refuses_values_outside_the_declared_bounds(values):
     with pytest.raises(FignetError, match=next(iter(values))):
@@ -43,7 +56,7 @@ def test_check_refuses_values_outside_the_declared_bounds(values):
 
 def test_check_accepts_the_bounds_and_an_unset_optional():
     check(Example(count=1, scale=1e-9, mode="b", limit=None))
-    check(Example(count=10, limit=0.0))
+    check(Example(count=10, limit=0.0, pair=(0.0, 5.0)))
 
 
 def test_the_generated_options_parse_defaults_bounds_flags_and_choices():

@@ -36,11 +36,16 @@ def setting(default, help: str, *, low=None, high=None, low_open=False, choices=
 
 def check(settings) -> None:
     """Refuse a Settings whose values lie outside their declared bounds (Python callers get the
-    command line's checks; a tuple's numbers each): NaN and ±inf are refused for every number."""
+    command line's checks; a tuple's numbers each, and its length where the annotation fixes
+    one): NaN and ±inf are refused for every number."""
+    types = field_types(type(settings))
     for field in dataclasses.fields(settings):
         value, meta = getattr(settings, field.name), field.metadata
         if value is None or "help" not in meta:
             continue
+        length = _tuple_length(types[field.name])
+        if length is not None and (not isinstance(value, (tuple, list)) or len(value) != length):
+            raise SettingError(f"{field.name} = {value!r}: give {length} values")
         if meta["choices"] is not None and value not in meta["choices"]:
             raise SettingError(
                 f"{field.name} = {value!r}: choose one of {', '.join(map(str, meta['choices']))}"
@@ -55,6 +60,14 @@ def check(settings) -> None:
                 or (high is not None and number > high)
             ):
                 raise SettingError(f"{field.name} = {value!r} is outside {_interval(meta)}")
+
+
+def _tuple_length(hint):
+    """The length a `tuple[X, Y, ...]` annotation fixes; None for `tuple[X, ...]` and non-tuples."""
+    arguments = typing.get_args(hint)
+    if typing.get_origin(hint) is not tuple or Ellipsis in arguments:
+        return None
+    return len(arguments)
 
 
 def _interval(meta) -> str:

@@ -241,9 +241,6 @@ def run(
     check(settings)
     if settings.rerun_connect is not None:
         viewer_address(settings.rerun_connect)  # a bad address is refused before training, not after
-    for name in ("learning_rate", "noise"):
-        if len(getattr(settings, name)) != 2:
-            raise SettingError(f"{name} = {getattr(settings, name)!r}: give two numbers")
     if settings.pushforward >= settings.batch_size:
         raise SettingError(
             f"--pushforward {settings.pushforward}: give fewer than --batch-size ({settings.batch_size}); "

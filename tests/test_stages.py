@@ -47,6 +47,7 @@ class Example:
         {"pair": 1.0},
         {"pair": (1.0, math.nan)},
         {"pair": (-1.0, 1.0)},
+        {"pair": [1.0, math.nan]},
     ],
 )
 def test_check_refuses_values_outside_the_declared_bounds(values):

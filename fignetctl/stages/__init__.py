@@ -50,7 +50,7 @@ def check(settings) -> None:
             raise SettingError(
                 f"{field.name} = {value!r}: choose one of {', '.join(map(str, meta['choices']))}"
             )
-        for number in value if isinstance(value, tuple) else (value,):
+        for number in value if isinstance(value, (tuple, list)) else (value,):
             if isinstance(number, bool) or not isinstance(number, (int, float)):
                 continue
             low, high = meta["low"], meta["high"]

@@ -10,6 +10,13 @@ state on them (measured here too). `--check` exits 1 when the bar is not met.
 
     python benchmarks/learnability.py data/movi-b-train.h5 --trajectories 2 --steps 3000 \
         -o benchmarks/results/learnability.json
+
+`--model FILE` measures a model trained elsewhere instead, e.g. by `fignetctl train` on a file
+holding just those trajectories, which checkpoints and resumes a run too long for one sitting:
+
+    fignetctl make-dataset --preset movi-b -n 2 --seed 1 -o data/movi-b-train-2.h5
+    fignetctl train data/movi-b-train-2.h5 -o overfit.pt --noise 0 0 --steps 20000 --batch-size 4
+    python benchmarks/learnability.py data/movi-b-train-2.h5 --model overfit.pt
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import torch
 
 from fignetctl.core.atomic import write_json
 from fignetctl.core.ceilings import evaluate_ceilings
+from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.evaluation import errors_at
 from fignetctl.core.model.learnability import (
     bar,
@@ -62,6 +70,61 @@ def rollout_errors(simulator, scenes, horizons=HORIZONS) -> dict:
     return out
 
 
+def measure_model(path, data):
+    """A model file's fit of the trajectories of `data`: (simulator, its scenes, FVU, rigid FVU)."""
+    simulator = load_model(path).eval()
+    scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
+    fvu = fraction_unexplained(simulator, one_step_examples(simulator, scenes))
+    return simulator, scenes, fvu, rigid_fraction_unexplained(simulator, scenes)
+
+
+def train_and_measure(args, data, curve, started):
+    """Overfit a model on `data` as the options say, appending the FVU at each --report-at
+    step to `curve`; returns (simulator, its scenes, FVU, rigid FVU, mean loss of the last 100 steps)."""
+    config = simulator_config_for(
+        "fignet-star",
+        args.size,
+        0.2,
+        256,
+        state=args.state,
+        static_receivers=False,
+        contact_velocity=args.contact_velocity,
+    )
+    scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
+    report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})
+    trainer = overfit(
+        config,
+        scenes,
+        args.steps,
+        args.batch_size,
+        tuple(args.learning_rate),
+        args.loss,
+        args.precision,
+        args.seed,
+        until_step=report_at[0] if report_at else None,
+        noise=tuple(args.noise),
+        frame_sampling=args.frame_sampling,
+        gravity=data.gravity,
+    )
+    examples = one_step_examples(trainer.simulator, scenes)
+    for step in report_at + [args.steps]:
+        trainer.run(until_step=step)
+        fvu = fraction_unexplained(trainer.simulator.eval(), examples)
+        rigid = rigid_fraction_unexplained(trainer.simulator, scenes)
+        trainer.simulator.train()
+        curve.append(
+            {
+                "step": step,
+                "seconds": time.perf_counter() - started,
+                "fraction_unexplained": fvu["all"],
+                "rigid_fraction_unexplained": rigid["all"],
+            }
+        )
+        print(json.dumps(curve[-1]), flush=True)
+    simulator = trainer.simulator.eval()
+    return simulator, scenes, fvu, rigid, float(np.mean([h["loss"] for h in trainer.history[-100:]]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data")
@@ -93,56 +156,25 @@ def main() -> None:
     )
     parser.add_argument("-o", "--output", default=None)
     parser.add_argument("--check", action="store_true", help="exit 1 when the learnability bar is not met")
+    parser.add_argument(
+        "--model",
+        default=None,
+        help="measure this model file instead of training one (the training options are then ignored)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     data = read_trajectories(args.data)
     data = dataclasses.replace(data, trajectories=dict(list(data.trajectories.items())[: args.trajectories]))
-    config = simulator_config_for(
-        "fignet-star",
-        args.size,
-        0.2,
-        256,
-        state=args.state,
-        static_receivers=False,
-        contact_velocity=args.contact_velocity,
-    )
-    scenes = scenes_from_data(data, config, TRAINING_STATIC_REACH)
-    report_at = sorted({int(step) for step in args.report_at.split(",") if step} - {args.steps})
     started = time.perf_counter()
-    trainer = overfit(
-        config,
-        scenes,
-        args.steps,
-        args.batch_size,
-        tuple(args.learning_rate),
-        args.loss,
-        args.precision,
-        args.seed,
-        until_step=report_at[0] if report_at else None,
-        noise=tuple(args.noise),
-        frame_sampling=args.frame_sampling,
-        gravity=data.gravity,
-    )
-    examples = one_step_examples(trainer.simulator, scenes)
     curve = []
-    for step in report_at + [args.steps]:
-        trainer.run(until_step=step)
-        fvu = fraction_unexplained(trainer.simulator.eval(), examples)
-        rigid = rigid_fraction_unexplained(trainer.simulator, scenes)
-        trainer.simulator.train()
-        curve.append(
-            {
-                "step": step,
-                "seconds": time.perf_counter() - started,
-                "fraction_unexplained": fvu["all"],
-                "rigid_fraction_unexplained": rigid["all"],
-            }
-        )
-        print(json.dumps(curve[-1]), flush=True)
+    if args.model:
+        simulator, scenes, fvu, rigid = measure_model(args.model, data)
+        final_loss = None
+    else:
+        simulator, scenes, fvu, rigid, final_loss = train_and_measure(args, data, curve, started)
     seconds = time.perf_counter() - started
-    simulator = trainer.simulator.eval()
     rollouts = rollout_errors(simulator, scenes)
-    ceiling_state = {"velocities": "velocity", "positions": "finite-difference"}[args.state]
+    ceiling_state = "velocity" if simulator.config.uses_velocities else "finite-difference"
     ceiling = evaluate_ceilings(data, HORIZONS, num_trajectories=args.trajectories, states=(ceiling_state,))[
         "states"
     ][ceiling_state]
@@ -153,14 +185,15 @@ def main() -> None:
     )
     result = {
         "args": vars(args),
-        "train_seconds": seconds,
+        "model": args.model,
+        "train_seconds": None if args.model else seconds,
         "fraction_unexplained": fvu,
         "rigid_fraction_unexplained": rigid,
         "curve": curve,
         "rollout": rollouts,
         "ceiling": {"state": ceiling_state, "horizons": ceiling},
         "bar": verdict,
-        "final_loss": float(np.mean([h["loss"] for h in trainer.history[-100:]])),
+        "final_loss": final_loss,
     }
     print(
         json.dumps(

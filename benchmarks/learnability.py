@@ -72,7 +72,7 @@ def rollout_errors(simulator, scenes, horizons=HORIZONS) -> dict:
 
 def measure_model(path, data):
     """A model file's fit of the trajectories of `data`: (simulator, its scenes, FVU, rigid FVU)."""
-    simulator = load_model(path).eval()
+    simulator = load_model(path)  # in eval mode
     scenes = scenes_from_data(data, simulator.config, TRAINING_STATIC_REACH)
     fvu = fraction_unexplained(simulator, one_step_examples(simulator, scenes))
     return simulator, scenes, fvu, rigid_fraction_unexplained(simulator, scenes)

@@ -24,6 +24,14 @@ class Settings:
         "Network size preset (paper: latent 128, 10 message-passing steps).",
         choices=("tiny", "small", "paper"),
     )
+    message_passing_steps: int | None = setting(
+        None,
+        "Processor blocks, in place of the --size's (tiny 2, small 5, paper 10). With --init-from a "
+        "model of fewer blocks, its blocks come first and the added ones start as identity "
+        "(docs/simulator.md).",
+        low=1,
+        high=64,
+    )
     collision_radius: float | None = setting(
         None, "Face-face edge radius in metres.  [default: 0.2]", low=0, low_open=True
     )
@@ -192,6 +200,7 @@ def configs(settings: Settings, device: str = "cpu"):
         settings.decimation,
         settings.contact_velocity,
         settings.free_motion,
+        settings.message_passing_steps,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

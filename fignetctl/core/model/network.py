@@ -287,6 +287,17 @@ def concatenated_block_forward(
     return node_latents + node_update, new_edge_latents
 
 
+def silence(block: GraphNetBlock) -> None:
+    """Zero the scale and shift of every LayerNorm in `block`, the last layer of each of its
+    updates, so every update is exactly zero and the residual block passes its latents through
+    unchanged. The scales still get gradients (those of the normalized MLP outputs), so training
+    grows the block from there, as ReZero does (Bachlechner et al. 2020)."""
+    for module in block.modules():
+        if isinstance(module, PartwiseLayerNorm):
+            nn.init.zeros_(module.layer_norm.weight)
+            nn.init.zeros_(module.layer_norm.bias)
+
+
 class EncodeProcessDecode(nn.Module):
     """Normalized graph -> per-node output (N, config.output_size).
 

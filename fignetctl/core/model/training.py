@@ -36,6 +36,7 @@ from fignetctl.core.atomic import process_running
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
+from fignetctl.core.model.network import silence
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
 from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
@@ -868,7 +869,9 @@ def _load_weights(simulator, path) -> None:
     error when its network differs (another architecture or size) or it reads mass with the
     other feature (kg or log), or its face-face edges differ in `contact_velocity`, or it
     decodes the whole correction where this run decodes the change from free motion, or the
-    other way round (`free_motion`)."""
+    other way round (`free_motion`). A source of the same widths but fewer processor blocks
+    fills the first ones; the blocks after them start as identity (`network.silence`), so the
+    run starts from the source's predictions."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -882,12 +885,21 @@ def _load_weights(simulator, path) -> None:
     if source.config.free_motion != simulator.config.free_motion:
         trained = "with" if source.config.free_motion else "without"
         raise FignetError(f"{path}: it was trained {trained} `free_motion`; give this run the same")
+    own, given = simulator.config.network, source.config.network
+    blocks = given.message_passing_steps
+    deepened = dataclasses.replace(given, message_passing_steps=own.message_passing_steps)
+    grown = own.message_passing_steps > blocks and deepened == own
     try:
-        simulator.load_state_dict(source.state_dict())
+        missing, unexpected = simulator.load_state_dict(source.state_dict(), strict=not grown)
+        new_blocks = tuple(f"network.processor.{k}." for k in range(blocks, own.message_passing_steps))
+        if unexpected or any(not key.startswith(new_blocks) for key in missing):
+            raise RuntimeError(f"the model file's weights do not fit: {[*unexpected, *missing][0]}")
+        for block in simulator.network.processor[blocks:]:  # after the source's blocks: identity
+            silence(block)
     except RuntimeError as error:
         raise FignetError(
-            f"{path}: its network differs from the one asked for (`model`, `size`); "
-            f"give the same ones ({str(error).splitlines()[0]})"
+            f"{path}: its network differs from the one asked for (`model`, `size`, "
+            f"`message_passing_steps`); give the same ones ({str(error).splitlines()[0]})"
         ) from None
 
 
@@ -905,8 +917,10 @@ def simulator_config_for(
     decimation="closest",
     contact_velocity=False,
     free_motion=False,
+    message_passing_steps=None,
 ) -> SimulatorConfig:
-    """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset, the state."""
+    """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset (with
+    its processor blocks, unless `message_passing_steps` is given), the state."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
     from fignetctl.core.model.simulator import output_size_for
@@ -922,6 +936,8 @@ def simulator_config_for(
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)
     network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state))
+    if message_passing_steps is not None:
+        network = dataclasses.replace(network, message_passing_steps=message_passing_steps)
     return SimulatorConfig(
         network=network,
         graph=graph,

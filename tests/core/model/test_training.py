@@ -391,6 +391,31 @@ def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
         make_trainer(box_file, log_mass, _config(), init_from=tmp_path / "first.pt")
 
 
+def test_init_from_a_model_of_fewer_blocks_adds_blocks_that_start_as_identity(box_file, tmp_path):
+    first = make_trainer(box_file, TINY, _config())
+    first.run(tmp_path / "first.pt")
+    deeper = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, message_passing_steps=4))
+    same, grown = (
+        make_trainer(box_file, config, _config(), init_from=tmp_path / "first.pt")
+        for config in (TINY, deeper)
+    )
+    assert len(grown.simulator.network.processor) == 4
+    for name, value in first.simulator.state_dict().items():  # the source's blocks come first
+        torch.testing.assert_close(grown.simulator.state_dict()[name], value, rtol=0, atol=0)
+    added = [p for k in (2, 3) for p in grown.simulator.network.processor[k].parameters()]
+    assert any(p.abs().sum() > 0 for p in added)  # the MLPs keep their random weights ...
+    batch = same.batches[0]
+    same.simulator.train(), grown.simulator.train()
+    assert grown.train_step(batch) == same.train_step(batch)  # ... but the blocks add nothing yet
+    scales = [grown.simulator.network.processor[k].node_update[1].layer_norm.weight for k in (2, 3)]
+    assert all(scale.abs().max() > 0 for scale in scales)  # and they grow from there
+    fewer = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, message_passing_steps=1))
+    wider = dataclasses.replace(deeper, network=dataclasses.replace(deeper.network, latent_size=16))
+    for config in (fewer, wider):
+        with pytest.raises(FignetError, match="network differs"):
+            make_trainer(box_file, config, _config(), init_from=tmp_path / "first.pt")
+
+
 def test_a_run_saved_before_target_keeps_noise_resumes_with_its_old_target(box_file, tmp_path):
     import json
 

@@ -32,6 +32,13 @@ class Settings:
         low=1,
         high=64,
     )
+    added_blocks_learning_rate_scale: float = setting(
+        1.0,
+        "With --init-from a model of fewer blocks than --message-passing-steps: the added blocks' "
+        "learning rate as a multiple of --learning-rate (they start as identity and grow from there).",
+        low=0,
+        low_open=True,
+    )
     collision_radius: float | None = setting(
         None, "Face-face edge radius in metres.  [default: 0.2]", low=0, low_open=True
     )
@@ -218,6 +225,7 @@ def configs(settings: Settings, device: str = "cpu"):
         target_keeps_noise=settings.target_keeps_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,
+        added_blocks_learning_rate_scale=settings.added_blocks_learning_rate_scale,
         precision=resolve_precision(settings.precision, device),
     )
     return simulator_config, training_config

@@ -108,6 +108,13 @@ class TrainingSettings:
     """Normalizer statistics are gathered over the first this many steps, then frozen."""
     checkpoint_every: int = 500
     """Steps between checkpoints."""
+    added_blocks_from: int = 0
+    """Processor blocks from this index on were added to a trained model of that many blocks
+    (`init_from`) and start as identity (`network.silence`); 0: none were added."""
+    added_blocks_learning_rate_scale: float = 1.0
+    """The added blocks' learning rate as a multiple of the others': their LayerNorm scales
+    start at zero and Adam moves a parameter by about the learning rate a step, so at a
+    fine-tuning rate they stay near zero for thousands of steps."""
     seed: int = 0
     precision: str = "fp32"
     """'fp32', or 'bf16': the network's forward and backward pass under bfloat16 autocast
@@ -159,6 +166,23 @@ def learning_rate_factor(step: int, config: TrainingSettings) -> float:
     """Multiplier of the initial rate at `step`: 1 at 0, final/initial at `steps`."""
     ratio = config.learning_rate_final / config.learning_rate_initial
     return ratio ** (min(step, config.steps) / max(config.steps, 1))
+
+
+def parameter_groups(simulator, config: TrainingSettings) -> list[dict]:
+    """Adam's parameter groups: one, or with a scaled learning rate for the processor blocks
+    added from `config.added_blocks_from` on, a second for those (its "scale")."""
+    if config.added_blocks_from == 0 or config.added_blocks_learning_rate_scale == 1.0:
+        return [{"params": list(simulator.parameters())}]
+    added = {
+        id(p) for block in simulator.network.processor[config.added_blocks_from :] for p in block.parameters()
+    }
+    return [
+        {"params": [p for p in simulator.parameters() if id(p) not in added]},
+        {
+            "params": [p for p in simulator.parameters() if id(p) in added],
+            "scale": config.added_blocks_learning_rate_scale,
+        },
+    ]
 
 
 def jitter_frame_t(positions, quaternions, static, generator, config: TrainingSettings):
@@ -579,7 +603,9 @@ class Trainer:
         self.scenes, self.simulator, self.config = scenes, simulator.to(device), config
         self.model = distributed.data_parallel(self.simulator, device)
         self.device, self.data_hash, self.workers = device, data_hash, workers
-        self.optimizer = torch.optim.Adam(simulator.parameters(), lr=config.learning_rate_initial)
+        self.optimizer = torch.optim.Adam(
+            parameter_groups(simulator, config), lr=config.learning_rate_initial
+        )
         self.batches = TrainingBatches(
             scenes, simulator.config, config, self.rank, fixed_pushforward_model(config, simulator.config)
         )
@@ -611,8 +637,9 @@ class Trainer:
         return float(loss.detach())
 
     def _apply(self, loss):
+        rate = self.config.learning_rate_initial * learning_rate_factor(self.step, self.config)
         for group in self.optimizer.param_groups:
-            group["lr"] = self.config.learning_rate_initial * learning_rate_factor(self.step, self.config)
+            group["lr"] = rate * group.get("scale", 1.0)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         gradients = [p.grad for p in self.simulator.parameters() if p.grad is not None]
@@ -851,7 +878,14 @@ def make_trainer(
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
         if init_from is not None:
-            _load_weights(simulator, init_from)
+            blocks = _load_weights(simulator, init_from)
+            if blocks < simulator.config.network.message_passing_steps:
+                training_config = dataclasses.replace(training_config, added_blocks_from=blocks)
+        if training_config.added_blocks_learning_rate_scale != 1.0 and not training_config.added_blocks_from:
+            raise FignetError(
+                "the added blocks' learning rate scale applies to processor blocks added to a trained "
+                "model: give `init_from` a model of fewer blocks than `message_passing_steps`"
+            )
     if simulator.config.uses_velocities and not all(t.has_velocities for t in data.trajectories.values()):
         raise FignetError(
             f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "
@@ -864,14 +898,14 @@ def make_trainer(
     return trainer
 
 
-def _load_weights(simulator, path) -> None:
+def _load_weights(simulator, path) -> int:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size) or it reads mass with the
     other feature (kg or log), or its face-face edges differ in `contact_velocity`, or it
     decodes the whole correction where this run decodes the change from free motion, or the
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
-    run starts from the source's predictions."""
+    run starts from the source's predictions. Returns the source's processor blocks."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -901,6 +935,7 @@ def _load_weights(simulator, path) -> None:
             f"{path}: its network differs from the one asked for (`model`, `size`, "
             f"`message_passing_steps`); give the same ones ({str(error).splitlines()[0]})"
         ) from None
+    return blocks
 
 
 def simulator_config_for(

@@ -409,11 +409,34 @@ def test_init_from_a_model_of_fewer_blocks_adds_blocks_that_start_as_identity(bo
     assert grown.train_step(batch) == same.train_step(batch)  # ... but the blocks add nothing yet
     scales = [grown.simulator.network.processor[k].node_update[1].layer_norm.weight for k in (2, 3)]
     assert all(scale.abs().max() > 0 for scale in scales)  # and they grow from there
+    assert grown.config.added_blocks_from == 2 and len(grown.optimizer.param_groups) == 1
     fewer = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, message_passing_steps=1))
     wider = dataclasses.replace(deeper, network=dataclasses.replace(deeper.network, latent_size=16))
     for config in (fewer, wider):
         with pytest.raises(FignetError, match="network differs"):
             make_trainer(box_file, config, _config(), init_from=tmp_path / "first.pt")
+
+
+def test_the_added_blocks_learn_at_their_own_rate_and_keep_it_on_resume(box_file, tmp_path):
+    make_trainer(box_file, TINY, _config()).run(tmp_path / "first.pt")
+    deeper = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, message_passing_steps=4))
+    config = _config(steps=4, added_blocks_learning_rate_scale=30.0)
+    trainer = make_trainer(box_file, deeper, config, init_from=tmp_path / "first.pt")
+    trainer.train_step()
+    first, added = trainer.optimizer.param_groups
+    assert added["lr"] == pytest.approx(30 * first["lr"])
+    ids = {id(p) for p in added["params"]}
+    assert ids == {id(p) for k in (2, 3) for p in trainer.simulator.network.processor[k].parameters()}
+    assert len(first["params"]) + len(ids) == len(list(trainer.simulator.parameters()))
+    scales = [trainer.simulator.network.processor[k].node_update[1].layer_norm.weight for k in (2, 3)]
+    assert all(scale.abs().max() > 10 * config.learning_rate_initial for scale in scales)  # ~30 lr a step
+    trainer.run(tmp_path / "grown.pt")
+    resumed = make_trainer(box_file, deeper, _config(steps=6), resume_from=tmp_path / "grown.pt")
+    assert resumed.config.added_blocks_from == 2 and resumed.config.added_blocks_learning_rate_scale == 30
+    assert len(resumed.optimizer.param_groups) == 2
+    resumed.run(tmp_path / "grown.pt")
+    with pytest.raises(FignetError, match="blocks added to a trained model"):
+        make_trainer(box_file, TINY, config, init_from=tmp_path / "first.pt")
 
 
 def test_a_run_saved_before_target_keeps_noise_resumes_with_its_old_target(box_file, tmp_path):

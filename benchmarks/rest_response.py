@@ -19,7 +19,9 @@ what physics does with what a velocity-state model is given. Beside them, the sp
 resting object after one step from exact rest (v = 0), mm per frame, and with
 `--drift-steps N` how far each resting object has moved after N steps of a rollout from the
 last two recorded frames (all objects as recorded there; `--guards`: with free flight, keep-out
-and sleeping, as `rollout` runs; else the network alone).
+and sleeping, as `rollout` runs; else the network alone). `--bf16` adds how far the step from
+exact rest under bfloat16 autocast, the arithmetic of `train --precision bf16`, lands from the
+float32 step (mm): whether training's rounding is as large as the error at rest.
 
     python benchmarks/rest_response.py --model fignetctl/assets/models/fignet-star-movi-b.pt \
         --data data/movi-b-test.h5 -n 6 --physics --drift-steps 60 \
@@ -105,6 +107,18 @@ def responses(step, speed=SPEED):
     return np.concatenate(moved), kept, from_rest
 
 
+def bf16_difference(step):
+    """(R,) mm per frame between the step from exact rest in float32 and the same step under
+    bfloat16 autocast, the arithmetic `train --precision bf16` trains in (CPU)."""
+    import torch
+
+    with torch.no_grad():
+        exact = step(np.zeros(3))[0]
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            rounded = step(np.zeros(3))[0]
+    return np.linalg.norm(rounded - exact, axis=1) * 1000
+
+
 def resting_drift(simulator, scene, steps, guards):
     """(R, 3) metres each object resting in the scene's last frame has moved after `steps` steps
     of a rollout that starts from its last two frames (their recorded velocities too)."""
@@ -165,6 +179,11 @@ def main():
     parser.add_argument(
         "--guards", action="store_true", help="the drift with free flight, keep-out and sleeping"
     )
+    parser.add_argument(
+        "--bf16",
+        action="store_true",
+        help="also how far the step from rest under bfloat16 autocast lands from the float32 one",
+    )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
@@ -176,16 +195,17 @@ def main():
         physics = RestartedPyBullet(data)
     found = {"model": [], "physics": []}
     guards = guards_for(data.dt, data.gravity, args.guards, args.guards, args.guards)
-    drifts = []
+    drifts, rounding = [], []
     try:
         for key in list(data.trajectories)[: args.n]:
             scene = scene_from_trajectory(data, key, simulator.config, {}, EVALUATION_STATIC_REACH)
             state = resting_state(scene.positions, scene.quaternions, scene.geometry.static)
             if not state[2].any():
                 continue
-            found["model"].append(
-                responses(functools.partial(model_step, simulator, scene.geometry, *state, dt=data.dt))
-            )
+            step = functools.partial(model_step, simulator, scene.geometry, *state, dt=data.dt)
+            found["model"].append(responses(step))
+            if args.bf16:
+                rounding.append(bf16_difference(step))
             if args.drift_steps:
                 drifts.append(resting_drift(simulator, scene, args.drift_steps, guards))
             if physics is not None:
@@ -206,9 +226,14 @@ def main():
             result["summary" if who == "model" else who] = summarise(
                 np.concatenate([row[0] for row in rows]), kept, np.concatenate([row[2] for row in rows])
             )
+    if rounding:
+        result["bf16_from_rest_difference_mm_p50_p90_max"] = (
+            np.percentile(np.concatenate(rounding), [50, 90, 100]).round(3).tolist()
+        )
     if drifts:
         result["drift"] = drift_summary(np.concatenate(drifts), data.gravity, args.drift_steps, args.guards)
-    print(json.dumps({key: value for key, value in result.items() if key in ("summary", "physics", "drift")}))
+    shown = ("summary", "physics", "drift", "bf16_from_rest_difference_mm_p50_p90_max")
+    print(json.dumps({key: value for key, value in result.items() if key in shown}))
     write_json(args.out, result)
 
 

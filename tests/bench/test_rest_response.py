@@ -115,3 +115,19 @@ def test_the_drift_summary_splits_the_displacements_along_and_across_gravity():
         np.percentile([0.0, 0.02, -0.005], [10, 50, 90]).round(4), summary["down_metres_p10_p50_p90"]
     )
     assert summary["across_metres_p10_p50_p90"][1] == 0.0 and summary["across_metres_p10_p50_p90"][2] == 0.04
+
+
+def test_bf16_difference_is_what_bfloat16_rounding_moves_the_step_from_rest():
+    """A step of (1 + 2^-10) · 2^-10 m computed by a matrix product: under autocast 1 + 2^-10
+    rounds to 1 in bfloat16 (7 stored mantissa bits; 2^-10 itself is exact), so the step moves
+    2^-20 m less; exact arithmetic (a step without a product) answers 0."""
+    import torch
+
+    def product_step(velocity):
+        moved = torch.tensor([[1.0 + 2.0**-10]]) @ torch.tensor([[2.0**-10, 0.0, 0.0]])
+        return moved.float().numpy().astype(np.float64), None
+
+    np.testing.assert_allclose(rest_response.bf16_difference(product_step), [2.0**-20 * 1000], rtol=1e-6)
+    np.testing.assert_array_equal(
+        rest_response.bf16_difference(lambda velocity: (np.full((2, 3), 1e-3), None)), [0.0, 0.0]
+    )

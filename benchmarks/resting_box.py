@@ -1,8 +1,9 @@
 """Does a model hold a box still on the floor, and what in the scene changes its answer?
 
 The suite's learned hard case (tests/stability/test_learned_rollouts.py) sets a cube on the
-floor at rest and asks that it stay within 1 cm. This rolls out the same scene, built as
-`build-graph` builds one (MOVi-B's rubber on MOVi-B's floor, frame time 1/30 s), over a grid
+floor at rest and asks that it stay within 1 cm. This rolls out that scene, built as
+`build-graph` builds one (MOVi-B's rubber on MOVi-B's floor, frame time 1/30 s), with the cube
+2 m across by default (`--size`; the suite's is 1 m, the model knows 1.4-2.8 m), over a grid
 of what could make it unlike the training data:
 
 - the gap between the box and the floor: 0, as the suite and `build-graph` place it, or the

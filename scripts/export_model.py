@@ -1,6 +1,8 @@
-"""`python scripts/export_model.py SOURCE DESTINATION [--trained-on DATA]`: ship a model
-without its training state (`--trained-on`: the training file of a run saved before models
-stored the properties they were trained on). `make checkpoints` runs it for the bundled models."""
+"""`python scripts/export_model.py SOURCE DESTINATION [--trained-on DATA] [--dt S --gravity X Y Z]`:
+ship a model without its training state (`--trained-on`: the training file of a run saved
+before models stored the properties, time step and gravity they were trained at; `--dt` and
+`--gravity`: those two of such a run, when its file is not at hand). `make checkpoints` runs
+it for the bundled models."""
 
 import argparse
 
@@ -11,5 +13,7 @@ if __name__ == "__main__":
     parser.add_argument("source")
     parser.add_argument("destination")
     parser.add_argument("--trained-on", default=None)
+    parser.add_argument("--dt", type=float, default=None, help="seconds per frame of the training data")
+    parser.add_argument("--gravity", type=float, nargs=3, default=None, help="m/s² of the training data")
     args = parser.parse_args()
-    print(export_checkpoint(args.source, args.destination, args.trained_on))
+    print(export_checkpoint(args.source, args.destination, args.trained_on, args.dt, args.gravity))

@@ -124,7 +124,8 @@ def base_files(folder: Path) -> dict:
         [[-1, -1, -0.8], [1, -1, -0.8], [1, 1, -0.8], [-1, 1, -0.8]],
         [[0, 1, 2], [0, 2, 3]],
     )
-    write_trajectories(folder / "trajectory.h5", box_rollout())
+    # at the bundled models' time step, which rollout and evaluate hold a scene's frames to
+    write_trajectories(folder / "trajectory.h5", box_rollout(shift=(0.05, 0.03, 0.02), frames=12, dt=1 / 30))
     export_checkpoint(bundled_model_path(), folder / "model.pt")  # as a user ships one: with its checksum
     K, c2w, width, height = top_camera(size=32, focal=40.0)
     cameras = Cameras(

@@ -1,6 +1,8 @@
 """import-kubric on a scene written here in Kubric's metadata.json schema (kubric/utils.py:
-get_scene_metadata, get_instance_info); show and evaluate read the result."""
+get_scene_metadata, get_instance_info); show and evaluate read the result, and evaluate refuses
+a model that steps another time than its frames."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -9,6 +11,8 @@ import trimesh
 from click.testing import CliRunner
 
 from fignetctl.cli import cli
+from fignetctl.core.model.apply import load_model
+from fignetctl.core.model.checkpoint import save_checkpoint
 from fignetctl.core.obj import write_obj
 from fignetctl.core.trajectory import read_trajectories
 
@@ -91,6 +95,15 @@ def test_a_kubric_scene_becomes_a_trajectory_that_show_and_evaluate_read(scene, 
     assert CliRunner().invoke(cli, ["show", str(out)]).exit_code == 0
     report = tmp_path / "metrics.json"
     evaluated = CliRunner().invoke(cli, ["evaluate", str(out), "--max-trajectories", "1", "-o", str(report)])
+    assert evaluated.exit_code != 0 and not report.exists()  # the bundled model steps 1/30 s, MOVi 1/12 s
+    assert "its frames are 0.0833333 s apart, the model steps 0.0333333 s" in evaluated.output
+    any_step = tmp_path / "any-step.pt"  # a model that records no time step takes the file's
+    bundled = load_model()
+    bundled.config = dataclasses.replace(bundled.config, dt=None, gravity=None)
+    save_checkpoint(any_step, bundled)
+    evaluated = CliRunner().invoke(
+        cli, ["evaluate", str(out), "--model", str(any_step), "--max-trajectories", "1", "-o", str(report)]
+    )
     assert evaluated.exit_code == 0, evaluated.output
     assert "constant_velocity" in json.loads(report.read_text())["metrics"]
 

@@ -16,13 +16,14 @@ from tests.rerun_reading import read_recording
 FRAMES = 4
 
 
-def box_rollout(half=0.5 * (BOX_UPPER - BOX_LOWER), shift=(0.15, 0.1, 0.05)):
-    """A static floor and the box, sliding by `shift` per frame from its rest place."""
+def box_rollout(half=0.5 * (BOX_UPPER - BOX_LOWER), shift=(0.15, 0.1, 0.05), frames=FRAMES, dt=0.1):
+    """A static floor and the box, sliding by `shift` per frame from its rest place, `frames`
+    frames `dt` s apart."""
     corners = rerender.box_corners(-half, half).astype(np.float32)
     faces = np.array([[0, 1, 2], [1, 3, 2]], np.int32)  # the reader checks indices, not closure
-    positions = np.zeros((FRAMES, 2, 3), np.float32)
-    positions[:, 1] = REST + np.arange(FRAMES)[:, None] * np.asarray(shift)
-    quaternions = np.zeros((FRAMES, 2, 4), np.float32)
+    positions = np.zeros((frames, 2, 3), np.float32)
+    positions[:, 1] = REST + np.arange(frames)[:, None] * np.asarray(shift)
+    quaternions = np.zeros((frames, 2, 4), np.float32)
     quaternions[..., 0] = 1.0
     trajectory = Trajectory(
         mesh_names=np.array(["floor", "box"], dtype=object),
@@ -36,7 +37,7 @@ def box_rollout(half=0.5 * (BOX_UPPER - BOX_LOWER), shift=(0.15, 0.1, 0.05)):
     )
     floor = Mesh(np.array([[-1, -1, -0.8], [1, -1, -0.8], [-1, 1, -0.8], [1, 1, -0.8]], np.float32), faces)
     return TrajectoryFile(
-        dt=0.1,
+        dt=dt,
         gravity=np.array([0, 0, -10.0]),
         meshes={"floor": floor, "box": Mesh(corners, faces)},
         trajectories={"00000": trajectory},

@@ -13,6 +13,7 @@ not fit the stored settings raise FormatError with what to do.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from importlib import resources
 from pathlib import Path
@@ -101,18 +102,21 @@ def _check_finite_state(simulator, path) -> None:
             raise FormatError(f"{path}: {name!r} holds NaN or inf; the model cannot be used")
 
 
-def export_checkpoint(source, destination, trained_on=None) -> Path:
+def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=None) -> Path:
     """Copy a model file without its optimiser and random state (a few MB, for shipping).
 
     What the run was (step, training settings, data hash, loss history) stays, under
     `provenance`, so the shipped file still says how it was made. `trained_on`, the training
     file of a run saved before models stored `trained_properties`, adds them (its hash must
-    be the run's).
+    be the run's), and its time step and gravity. `dt` (s) and `gravity` (3 numbers, m/s²)
+    record those of a run saved before models stored them, when its data is not at hand.
     """
+    from fignetctl.core.model.simulator import SimulatorConfig
     from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json, trajectory_largest_sides
     from fignetctl.core.trajectory import read_trajectories
 
     payload = read_checkpoint_payload(source)
+    config = SimulatorConfig.from_json(payload["simulator_config"])
     state = payload.pop("training_state", None)
     if state:  # an exported file keeps the provenance it has
         payload["provenance"] = {key: state[key] for key in (*RUN_RECORD, "history") if key in state}
@@ -123,6 +127,16 @@ def export_checkpoint(source, destination, trained_on=None) -> Path:
         sides = np.concatenate([trajectory_largest_sides(data, key) for key in data.trajectories])
         ranges = property_ranges(((t.properties, t.static) for t in data.trajectories.values()), sides)
         payload["trained_properties"] = ranges_to_json(ranges)
+        if config.dt is None and config.gravity is None and dt is None and gravity is None:
+            dt, gravity = data.dt, data.gravity
+    if dt is not None or gravity is not None:
+        for name, value in (("dt", config.dt), ("gravity", config.gravity)):
+            if value is not None:
+                raise FormatError(f"{source}: records its {name} ({value}) already; it is not changed")
+        if dt is None or gravity is None:
+            raise SettingError("give both the time step and the gravity the model was trained at")
+        recorded = dataclasses.replace(config, dt=float(dt), gravity=tuple(float(g) for g in gravity))
+        payload["simulator_config"] = recorded.to_json()
     return save_torch_payload(destination, payload)
 
 

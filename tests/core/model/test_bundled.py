@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 
+from fignetctl.core import movi
 from fignetctl.core.containers import WEIGHTS_HASH_KEY
 from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.checkpoint import BUNDLED, bundled_model_path, read_checkpoint_payload
@@ -23,6 +24,8 @@ def test_bundled_checkpoints_are_small_and_differ_only_in_surface_edges():
     star, full = configs["fignet-star-movi-b"], configs["fignet-movi-b"]
     assert not star.graph.surface_edges and full.graph.surface_edges
     assert dataclasses.replace(full, graph=star.graph) == star
+    movi_b = movi.movi_config("movi-b")  # what they were trained on: make-dataset --preset movi-b
+    assert star.dt == movi_b.dt and star.gravity == tuple(movi_b.gravity)
 
 
 def test_default_model_rolls_a_box_dropped_on_the_floor_out_finitely():

@@ -23,8 +23,8 @@ from fignetctl.core.model.training import (
     simulator_config_for,
     torch_threads,
 )
-from fignetctl.core.trajectory import write_trajectories
-from fignetctl.errors import FignetError, FormatError
+from fignetctl.core.trajectory import read_trajectories, write_trajectories
+from fignetctl.errors import FignetError, FormatError, SettingError
 from tests.conftest import box_drop_file
 
 TINY = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, False))
@@ -251,6 +251,24 @@ def test_export_drops_training_state_and_keeps_provenance(box_file, tmp_path):
     assert (tmp_path / "shipped.pt").stat().st_size < (tmp_path / "full.pt").stat().st_size
     simulator, state = load_checkpoint(tmp_path / "shipped.pt", with_training_state=True)
     assert state is None and simulator.config == trainer.simulator.config
+
+
+def test_export_records_the_time_step_and_gravity_of_a_run_saved_without_them(box_file, tmp_path):
+    from fignetctl.core.model.checkpoint import export_checkpoint
+
+    trainer = make_trainer(box_file, TINY, _config(steps=1))
+    data = read_trajectories(box_file)
+    assert trainer.simulator.config.dt == data.dt and trainer.simulator.config.gravity == tuple(data.gravity)
+    bare = dataclasses.replace(trainer.simulator.config, dt=None, gravity=None)
+    save_checkpoint(tmp_path / "old.pt", LearnedSimulator(bare))  # as runs saved before they were kept
+    with pytest.raises(SettingError, match="give both"):
+        export_checkpoint(tmp_path / "old.pt", tmp_path / "half.pt", dt=1 / 30)
+    export_checkpoint(tmp_path / "old.pt", tmp_path / "shipped.pt", dt=1 / 30, gravity=(0, 0, -10))
+    shipped = load_checkpoint(tmp_path / "shipped.pt").config
+    assert shipped == dataclasses.replace(bare, dt=1 / 30, gravity=(0.0, 0.0, -10.0))
+    with pytest.raises(FormatError, match="records its dt .* already"):
+        export_checkpoint(tmp_path / "shipped.pt", tmp_path / "again.pt", dt=1 / 60, gravity=(0, 0, -10))
+    assert not (tmp_path / "half.pt").exists() and not (tmp_path / "again.pt").exists()
 
 
 def test_averaged_runs_hold_the_mean_weights_pooled_statistics_and_each_run(box_file, tmp_path):

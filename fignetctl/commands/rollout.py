@@ -31,6 +31,9 @@ def rollout(scene, output, model, rerun_path, json_path, overwrite, **settings):
     bundled models' 1.4-2.8 m objects. By default (--sim-scale auto) such a scene is simulated
     scaled up to their size and mapped back (Froude similarity: the frames come out
     dt / sqrt(scale) apart), and the scale is printed; --sim-scale 1 simulates it as it is.
+    A scene under another gravity than the model learned is simulated under the model's, in
+    the time that makes it the same motion (the frames come out dt * sqrt(g_model / g_scene)
+    apart, and it is printed); one whose gravity points elsewhere is refused.
 
     \b
     Example:

@@ -65,7 +65,7 @@ def run(
     """Predict `settings.steps` frames after the first two of the trajectory file `scene` with the
     model file (or bundled model name) `model`, and write them to `output` atomically, with
     the model's and the scene's hashes. `report` (default: stderr) gets a note when the scene is
-    simulated at another scale. A rollout that goes wrong still writes the frames before the failure, then
+    simulated at another scale or under the model's gravity (froude.py). A rollout that goes wrong still writes the frames before the failure, then
     raises a FignetError naming the step and object. Returns the summary (also the --json)."""
     from fignetctl.core.model.apply import load_model, rollout_trajectory
     from fignetctl.core.model.rollout import RolloutError
@@ -101,6 +101,13 @@ def run(
         (report or to_stderr)(
             f"simulated at {scale:.4g}x its size, as the model knows objects of that size; "
             f"frames {1000 * result.dt:.3g} ms apart (--sim-scale 1 to simulate it as it is)"
+        )
+    ratio = float(result.attrs["gravity_ratio"])
+    if ratio != 1.0:
+        strength = math.hypot(*result.gravity)
+        (report or to_stderr)(
+            f"simulated under the gravity the model learned ({strength / ratio:.4g} m/s²) in the time that "
+            f"makes it the scene's ({strength:.4g} m/s²): frames {1000 * result.dt:.3g} ms apart"
         )
     trajectory = next(iter(result.trajectories.values()))
     summary = {

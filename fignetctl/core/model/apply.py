@@ -72,6 +72,10 @@ def rollout_trajectory(
     sim_scale : simulate the scene scaled by this factor (or "auto": froude.auto_scale with
         the model's trained_properties) and map the frames back; the result's frame time is then dt / √sim_scale
         (fignetctl.core.model.froude)
+
+    A scene under another gravity than the model's (as strong in another direction: refused)
+    is simulated under the model's, in the time that makes it the same motion (froude), so the
+    result's frame time is then dt / √(sim_scale · g'/g).
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
     keep_out : objects are moved back out of static meshes they pass into (penetration.py)
@@ -87,17 +91,20 @@ def rollout_trajectory(
     step_dt = simulation_time_step(simulator, data, key, where)
     trained = getattr(simulator, "trained_properties", None)
     scale = froude.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
+    ratio = froude.gravity_ratio(data.gravity, simulator.config.gravity, where)
     simulated = data
-    if scale != 1.0:
-        simulated, history = froude.scaled_scene(data, key, scale)
+    if scale != 1.0 or ratio != 1.0:
+        simulated, history = froude.scaled_scene(data, key, scale, ratio)
     scene = scene_from_trajectory(simulated, key, simulator.config)
     warn_untrained_properties(simulator, [data.trajectories[key]])
-    guards = guards_for(step_dt, data.gravity, sleep, free_flight, keep_out)
+    guards = guards_for(step_dt, simulated.gravity, sleep, free_flight, keep_out)
 
     def result(frames):
-        if scale != 1.0:
-            frames = froude.unscaled_frames(frames, history, scale)
-        return rollout_result(data, key, *frames, simulator, step_dt / scale**0.5, scale)
+        if scale != 1.0 or ratio != 1.0:
+            frames = froude.unscaled_frames(frames, history, scale, ratio)
+        return rollout_result(
+            data, key, *frames, simulator, step_dt / froude.time_factor(scale, ratio), scale, ratio
+        )
 
     try:
         frames = rollout(simulator, scene, num_steps, on_step, guards=guards, with_velocities=True)
@@ -123,10 +130,20 @@ def warn_untrained_properties(simulator, trajectories) -> None:
 
 
 def rollout_result(
-    data, key, positions, quaternions, velocities, angular_velocities, simulator, dt=None, sim_scale=1.0
+    data,
+    key,
+    positions,
+    quaternions,
+    velocities,
+    angular_velocities,
+    simulator,
+    dt=None,
+    sim_scale=1.0,
+    gravity_ratio=1.0,
 ) -> TrajectoryFile:
     """A trajectory file of the rollout: the scene's meshes and objects, the new frames (with
-    velocities when given, (T, O, 3) m/s and rad/s)."""
+    velocities when given, (T, O, 3) m/s and rad/s); its attrs say at which scale and under
+    which gravity (the scene's over the model's) it was simulated."""
     trajectory = dataclasses.replace(
         data.trajectories[key],
         positions=positions.astype(np.float32),
@@ -141,6 +158,7 @@ def rollout_result(
         "source": "fignetctl rollout",
         "model_config": simulator.config.to_json(),
         "sim_scale": float(sim_scale),
+        "gravity_ratio": float(gravity_ratio),
         "rotations": simulator.rotations,
     }
     return TrajectoryFile(data.dt if dt is None else dt, data.gravity, meshes, {key: trajectory}, attrs)
@@ -163,6 +181,7 @@ def evaluate_trajectories(
     `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping);
     `ceilings` also evaluates PyBullet restarted every frame from each state (core/ceilings.py;
     the file must come from make-dataset)."""
+    from fignetctl.core.model import froude
     from fignetctl.core.model.evaluation import evaluate_scenes
 
     keys = list(data.trajectories)[:max_trajectories]
@@ -170,6 +189,12 @@ def evaluate_trajectories(
         raise FignetError(
             f"{where}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
             "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step"
+        )
+    if froude.gravity_ratio(data.gravity, simulator.config.gravity, where) != 1.0:
+        raise FignetError(
+            f"{where}: its gravity is {np.linalg.norm(data.gravity):.4g} m/s², the model learned "
+            f"{np.linalg.norm(simulator.config.gravity):.4g} m/s², so its rollouts cannot be compared with them "
+            "frame by frame; evaluate on data under the model's gravity (`rollout` maps a scene to it)"
         )
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
     cache = {}

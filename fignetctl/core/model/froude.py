@@ -8,6 +8,13 @@ x' = s·x, t' = √s·t, v' = √s·v). So a small scene can be simulated at the
 the model's frame time dt, and the predicted frames mapped back: positions divided by s, the
 frames then √s times closer in time (dt / √s).
 
+Gravity is mapped the same way. A model learns the gravity of its data (it records it); a scene
+under gravity g' behaves like one under the model's g with time running √(g'/g) times faster.
+Both together: the model's world is the scene scaled by s in space, with c = √(s·g'/g) of the
+model's seconds per second of the scene (x' = s·x, t' = c·t, v' = (s/c)·v, ω' = ω/c), and each
+of the model's steps is dt / c of the scene's time. A scene whose gravity points elsewhere
+than the model's, or that has none, cannot be mapped so (`gravity_ratio` refuses it).
+
 The first frame (t−1) is moved so that the motion survives the change of frame time: each
 dynamic object's centre is taken to fly on the parabola under gravity g through its two given
 positions (x_{t−1} at −dt, x_t at 0), and x_{t−1} becomes that parabola at −dt/√s; its
@@ -37,6 +44,9 @@ TRAINING_OBJECT_SIDE = 2.1
 TRAINING_SIDE_RANGE = (1.4, 2.8)
 """Metres: the range of those largest sides; `auto_scale` leaves scenes inside it as they are."""
 
+GRAVITY_TOLERANCE = 1e-3
+"""A scene's gravity within this fraction (and a twentieth of a degree) of the model's is the model's."""
+
 
 def largest_dynamic_side(data, key) -> float:
     """Largest side (m) of the axis-aligned box of any dynamic object's scaled mesh."""
@@ -57,6 +67,40 @@ def auto_scale(data, key, trained_properties=None) -> float:
         known if known else (TRAINING_SIDE_RANGE[0], TRAINING_OBJECT_SIDE, TRAINING_SIDE_RANGE[1])
     )
     return 1.0 if low <= side <= high else median / side
+
+
+def gravity_ratio(scene_gravity, model_gravity, where="scene") -> float:
+    """|g'| / |g| of a scene's gravity g' to the gravity g a model was trained under; 1 when the
+    model records none or they agree (GRAVITY_TOLERANCE). A FignetError when the scene has no
+    gravity or it points elsewhere than the model's (`where` names the scene)."""
+    if model_gravity is None:
+        return 1.0
+    scene_gravity, model_gravity = (
+        np.asarray(scene_gravity, np.float64),
+        np.asarray(model_gravity, np.float64),
+    )
+    scene_norm, model_norm = np.linalg.norm(scene_gravity), np.linalg.norm(model_gravity)
+    model_text = f"({', '.join(f'{g:g}' for g in model_gravity)}) m/s²"
+    if scene_norm == 0.0:
+        raise FignetError(
+            f"{where}: has no gravity, and the model learned to simulate under {model_text}; "
+            "give the scene a gravity along the model's"
+        )
+    cosine = float(np.dot(scene_gravity, model_gravity) / (scene_norm * model_norm))
+    if cosine < math.cos(math.radians(0.05)):
+        raise FignetError(
+            f"{where}: its gravity points along ({', '.join(f'{g:.3g}' for g in scene_gravity / scene_norm)}), "
+            f"{math.degrees(math.acos(min(1.0, max(-1.0, cosine)))):.3g}° from the model's {model_text}; "
+            "rotate the scene so that gravity points along the model's"
+        )
+    ratio = scene_norm / model_norm
+    return 1.0 if abs(ratio - 1.0) <= GRAVITY_TOLERANCE else float(ratio)
+
+
+def time_factor(scale: float, ratio: float = 1.0) -> float:
+    """c = √(s·g'/g): the model's seconds per second of a scene scaled by s whose gravity is
+    `ratio` (g'/g) times the model's (module docstring)."""
+    return math.sqrt(scale * ratio)
 
 
 def retimed_history(trajectory, dt: float, new_dt: float, gravity):
@@ -81,12 +125,14 @@ def retimed_history(trajectory, dt: float, new_dt: float, gravity):
     return positions, quaternions
 
 
-def scaled_scene(data, key, scale: float):
-    """A copy of the file holding trajectory `key` at `scale`, history re-timed (module docstring),
-    and the frames t−1 and t it started from at the original size (positions, quaternions,
-    velocities, angular velocities; velocities None when the file has none).
+def scaled_scene(data, key, scale: float, ratio: float = 1.0):
+    """A copy of the file holding trajectory `key` at `scale` under the gravity `ratio` (g'/g)
+    times smaller than the file's, history re-timed (module docstring), and the frames t−1 and
+    t it started from at the original size (positions, quaternions, velocities, angular
+    velocities; velocities None when the file has none).
 
-    The copy has only frames t−1 and t; its velocities are scaled by √s, angular ones by 1/√s.
+    The copy has only frames t−1 and t; with c = time_factor(scale, ratio) its velocities are
+    scaled by s/c, angular ones by 1/c, its gravity by s/c² (= 1/ratio).
     """
     if not (math.isfinite(scale) and scale > 0):
         raise FignetError(f"the simulation scale must be a positive number, not {scale}")
@@ -99,7 +145,8 @@ def scaled_scene(data, key, scale: float):
             f"trajectory {key!r}: static object {int(np.flatnonzero(static & moving)[0])} moves over the given frames, "
             "so the scene cannot be simulated at another scale; use `sim_scale=1`"
         )
-    positions, quaternions = retimed_history(trajectory, data.dt, data.dt / math.sqrt(scale), data.gravity)
+    factor = time_factor(scale, ratio)
+    positions, quaternions = retimed_history(trajectory, data.dt, data.dt / factor, data.gravity)
     velocities = angular = None
     if trajectory.has_velocities:
         velocities = np.asarray(trajectory.velocities[:2], np.float64)
@@ -108,12 +155,13 @@ def scaled_scene(data, key, scale: float):
         trajectory,
         positions=positions * scale,
         quaternions=quaternions,
-        velocities=None if velocities is None else velocities * math.sqrt(scale),
-        angular_velocities=None if angular is None else angular / math.sqrt(scale),
+        velocities=None if velocities is None else velocities * (scale / factor),
+        angular_velocities=None if angular is None else angular / factor,
         scales=np.asarray(trajectory.scales, np.float64) * scale,
         extras={},
     )
-    return dataclasses.replace(data, trajectories={key: scaled}), (
+    gravity = np.asarray(data.gravity, np.float64) / ratio
+    return dataclasses.replace(data, gravity=gravity, trajectories={key: scaled}), (
         positions,
         quaternions,
         velocities,
@@ -121,25 +169,24 @@ def scaled_scene(data, key, scale: float):
     )
 
 
-def unscaled_frames(frames, history, scale: float):
+def unscaled_frames(frames, history, scale: float, ratio: float = 1.0):
     """A rollout of `scaled_scene`'s copy mapped back: `history` (its frames t−1, t at the
-    original size) followed by the predicted frames, positions / s, velocities / √s, angular
-    velocities · √s.
+    original size) followed by the predicted frames, positions / s, velocities · c/s, angular
+    velocities · c (c = time_factor(scale, ratio)).
 
     frames, history : positions (T, O, 3), quaternions (T, O, 4), velocities and angular
     velocities (T, O, 3) or None each
     """
     positions, quaternions, velocities, angular = frames
-    root = math.sqrt(scale)
+    factor = time_factor(scale, ratio)
     mapped = [
         np.concatenate([history[0], positions[2:] / scale]),
         np.concatenate([history[1], quaternions[2:]]),
     ]
-    for k, (values, factor) in enumerate(((velocities, 1 / root), (angular, root)), start=2):
+    for k, (values, back) in enumerate(((velocities, factor / scale), (angular, factor)), start=2):
         if values is not None:
             values = (
-                np.concatenate([values[:2] if history[k] is None else history[k] / factor, values[2:]])
-                * factor
+                np.concatenate([values[:2] if history[k] is None else history[k] / back, values[2:]]) * back
             )
         mapped.append(values)
     return mapped

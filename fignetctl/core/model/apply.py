@@ -72,16 +72,14 @@ def rollout_trajectory(
     sim_scale : simulate the scene scaled by this factor (or "auto": froude.auto_scale with
         the model's trained_properties) and map the frames back; the result's frame time is then dt / √sim_scale
         (fignetctl.core.model.froude)
-
-    A scene under another gravity than the model's (as strong in another direction: refused)
-    is simulated under the model's, in the time that makes it the same motion (froude), so the
-    result's frame time is then dt / √(sim_scale · g'/g).
     sleep : let resting objects sleep (fignetctl.core.model.rollout.SleepSettings)
     free_flight : objects that touch nothing fly exactly (LearnedSimulator.step)
     keep_out : objects are moved back out of static meshes they pass into (penetration.py)
 
-    The result holds the model's time step (`simulation_time_step`, over √sim_scale), and the
-    velocities of a velocity-state model.
+    A scene under another gravity g' than the model's g is simulated under g in the time that
+    makes it the same motion (froude; gravity pointing elsewhere, or none, is refused). The
+    result holds the model's time step (`simulation_time_step`) over √(sim_scale · g'/g), and
+    the velocities of a velocity-state model.
     """
     from fignetctl.core.model import froude
 

@@ -126,8 +126,8 @@ def retimed_history(trajectory, dt: float, new_dt: float, gravity):
 
 
 def scaled_scene(data, key, scale: float, ratio: float = 1.0):
-    """A copy of the file holding trajectory `key` at `scale` under the gravity `ratio` (g'/g)
-    times smaller than the file's, history re-timed (module docstring), and the frames t−1 and
+    """A copy of the file holding trajectory `key` at `scale` under the model's gravity (the
+    file's over `ratio`, g'/g), history re-timed (module docstring), and the frames t−1 and
     t it started from at the original size (positions, quaternions, velocities, angular
     velocities; velocities None when the file has none).
 
@@ -143,7 +143,8 @@ def scaled_scene(data, key, scale: float, ratio: float = 1.0):
     if np.any(static & moving):
         raise FignetError(
             f"trajectory {key!r}: static object {int(np.flatnonzero(static & moving)[0])} moves over the given frames, "
-            "so the scene cannot be simulated at another scale; use `sim_scale=1`"
+            "so the scene cannot be simulated at another scale or re-timed to the model's gravity; "
+            "use `sim_scale=1` and give the scene the model's gravity"
         )
     factor = time_factor(scale, ratio)
     positions, quaternions = retimed_history(trajectory, data.dt, data.dt / factor, data.gravity)

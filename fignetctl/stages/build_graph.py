@@ -36,6 +36,14 @@ class Settings:
         PASSIVE.restitution, "Restitution of the passive object.", low=0, high=1
     )
     dt: float = setting(1 / 30, "Seconds between frames; the bundled models' is 1/30.", low=0, low_open=True)
+    gravity: float = setting(
+        9.81,
+        "Gravity (m/s², along -z). rollout simulates a scene under another gravity than its model learned "
+        "(the bundled models: 10) in the time that makes it the same motion.",
+        low=0,
+        low_open=True,
+        high=1000,
+    )
 
 
 def run(
@@ -73,6 +81,7 @@ def run(
         s.duplicate,
         volume.environment_origin,
         s.dt,
+        (0.0, 0.0, -s.gravity),
     )
     provenance = stamp(
         volume=volume_path,

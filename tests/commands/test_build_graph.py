@@ -41,7 +41,7 @@ def test_default_drop(extracted):
     )
     assert result.exit_code == 0, result.output
     data = read_trajectories(extracted / "scene.h5")
-    assert data.dt == pytest.approx(1 / 30)
+    assert data.dt == pytest.approx(1 / 30) and data.gravity.tolist() == [0, 0, -9.81]  # the Earth's
     (trajectory,) = data.trajectories.values()
     assert trajectory.num_frames == 2 and list(trajectory.mesh_names) == ["environment", "object"]
     assert list(trajectory.static) == [True, False]
@@ -66,11 +66,15 @@ def test_start_velocity_duplicate_and_properties(extracted):
         "0.9",
         "--dt",
         "0.1",
+        "--gravity",
+        "1.62",
         "-o",
         extracted / "scene.h5",
     )
     assert result.exit_code == 0, result.output
-    (trajectory,) = read_trajectories(extracted / "scene.h5").trajectories.values()
+    data = read_trajectories(extracted / "scene.h5")
+    assert data.gravity.tolist() == [0, 0, -1.62]
+    (trajectory,) = data.trajectories.values()
     assert list(trajectory.static) == [True, True, False]
     assert np.allclose(trajectory.positions[:, 1], [0.1, -0.2, 0.06])  # the original stays
     assert np.allclose(trajectory.positions[:, 2], [[0.0, 0, 0.5], [0.3, 0, 0.5]])
@@ -112,6 +116,8 @@ def test_errors(extracted):
     assert result.exit_code == 1 and "object.obj" in result.output and "Traceback" not in result.output
     result = run("build-graph", extracted / "volume.npz", "--start", "1,2", "-o", extracted / "s.h5")
     assert result.exit_code == 2 and "3 comma-separated" in result.output
+    result = run("build-graph", extracted / "volume.npz", "--gravity", "0", "-o", extracted / "s.h5")
+    assert result.exit_code == 2 and "--gravity" in result.output and not (extracted / "s.h5").exists()
 
 
 def test_drop_report_sees_landing_rest_and_penetration():

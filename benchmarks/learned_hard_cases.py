@@ -6,6 +6,7 @@ sets of properties, and writes them to json (docs/stability.md has the table).
 
     python benchmarks/learned_hard_cases.py --out docs/results/learned-hard-cases.json
     python benchmarks/learned_hard_cases.py --model path/to/model.pt --out hard.json
+    python benchmarks/learned_hard_cases.py --model path/to/model.pt --rotations 4 --out hard-4.json
 """
 
 import argparse
@@ -102,13 +103,17 @@ def main():
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--model", default=None, help="model file (default: the bundled FIGNet*)")
+    parser.add_argument(
+        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+    )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     logging.basicConfig(
         level=logging.ERROR
     )  # the paper's table is outside the model's: rollout warns on every scene
     model = load_model(args.model)
-    result = {"model": args.model or "bundled fignet-star-movi-b"}
+    model.rotations = args.rotations
+    result = {"model": args.model or "bundled fignet-star-movi-b", "rotations": args.rotations}
     with tempfile.TemporaryDirectory() as folder:
         for name, paper in (("movi_b_materials", False), ("paper_fignet_star_table", True)):
             result[name] = measure(model, Path(folder), paper)

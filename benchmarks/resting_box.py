@@ -70,9 +70,13 @@ def main():
     parser.add_argument("--masses", type=float, nargs="+", default=[1.0, 5.0, 20.0], metavar="KG")
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--guards", action="store_true", help="free flight, keep-out and sleeping")
+    parser.add_argument(
+        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+    )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_model(args.model)
+    simulator.rotations = args.rotations
     rows = []
     for gap, subdivisions, mass in itertools.product(args.gaps, args.subdivisions, args.masses):
         scene = resting_box_scene(args.size, gap, subdivisions, mass)
@@ -93,6 +97,7 @@ def main():
             "size_m": args.size,
             "steps": args.steps,
             "guards": args.guards,
+            "rotations": args.rotations,
             "rows": rows,
         },
     )

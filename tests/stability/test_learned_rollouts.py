@@ -5,7 +5,7 @@ objects, long rollouts. Each asserts finite values and an error bound against th
 The scenes use the materials the bundled models were trained on (MOVi-B: moving objects
 rubber, friction 0.8, restitution 0.7; the floor 0.3, 0.5), as `build-graph` does by default;
 docs/stability.md has what other values do. FIGNET_TEST_MODEL=path runs them on another
-checkpoint."""
+checkpoint, FIGNET_TEST_ROTATIONS=K with the network averaged over K turns about gravity."""
 
 import numpy as np
 import pytest
@@ -25,7 +25,9 @@ FLOOR = trimesh.creation.box([40.0, 40.0, 1.0])  # top at z = 0 once placed at z
 def model():
     import os
 
-    return load_model(os.environ.get("FIGNET_TEST_MODEL"))
+    simulator = load_model(os.environ.get("FIGNET_TEST_MODEL"))
+    simulator.rotations = int(os.environ.get("FIGNET_TEST_ROTATIONS", "1"))
+    return simulator
 
 
 def scene_file(path, bodies, statics=()):

@@ -26,9 +26,9 @@ class Settings:
     ceilings: bool = setting(
         False, "Also evaluate PyBullet restarted every frame from a model's inputs (make-dataset DATA only)."
     )
-    rotations: int = setting(
-        1,
-        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).",
+    rotations: int | None = setting(
+        None,
+        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).  [default: the model file's, 1 unless it records more]",
         low=1,
         high=64,
     )
@@ -49,7 +49,8 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
 
     check(settings)
     simulator = load_model(model, resolve_device(settings.device))
-    simulator.rotations = settings.rotations
+    if settings.rotations is not None:
+        simulator.rotations = settings.rotations
     trajectories = read_trajectories(data)
     total = len(list(trajectories.trajectories)[: settings.max_trajectories])
     with (progress or no_progress)(total=total, unit="trajectory", desc="evaluate") as bar:

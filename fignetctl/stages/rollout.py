@@ -28,9 +28,9 @@ class Settings:
     keep_out: bool = setting(
         True, "Move an object that passed into static geometry back out after each step (docs/simulator.md)."
     )
-    rotations: int = setting(
-        1,
-        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).",
+    rotations: int | None = setting(
+        None,
+        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).  [default: the model file's, 1 unless it records more]",
         low=1,
         high=64,
     )
@@ -75,7 +75,8 @@ def run(
     check(settings)
     sim_scale = parse_sim_scale(settings.sim_scale)
     simulator = load_model(model, resolve_device(settings.device))
-    simulator.rotations = settings.rotations
+    if settings.rotations is not None:
+        simulator.rotations = settings.rotations
     data = read_trajectories(scene, None if settings.trajectory is None else [settings.trajectory])
     with (progress or no_progress)(total=settings.steps, unit="step", desc="rollout") as bar:
         try:

@@ -4,7 +4,8 @@ Layout of the torch file (loaded with `weights_only=True`, so nothing is unpickl
 tensors and plain values):
 
     format="fignetctl.model", format_version=1, fignetctl_version, simulator_config (json),
-    model (state_dict), trained_properties (json, optional: trained_ranges.py), training_state
+    model (state_dict), trained_properties (json, optional: trained_ranges.py), rotations
+    (optional int: the turns about gravity its network is averaged over by default), training_state
     (optional: step, optimizer, random states, history, training_config json, data_hash)
 
 Writes are atomic. A file that is not a fignetctl model, a newer format, or weights that do
@@ -32,6 +33,8 @@ from fignetctl.core.model.trained_ranges import ranges_from_json
 from fignetctl.core.provenance import as_strings, file_sha256, stamp
 from fignetctl.errors import FormatError, SettingError
 
+MAX_ROTATIONS = 64
+"""The most turns about gravity a model file may ask its network to be averaged over."""
 FORMAT = "fignetctl.model"
 FORMAT_VERSION = 1
 DEFAULT_BUNDLED = "fignet-star-movi-b"
@@ -92,6 +95,12 @@ def _simulator_from_payload(payload, path):
     except LOADING_ERRORS as error:
         raise weights_do_not_fit(path, error) from None
     _check_finite_state(simulator, path)
+    rotations = payload.get("rotations", 1)
+    if isinstance(rotations, bool) or not isinstance(rotations, int) or not 1 <= rotations <= MAX_ROTATIONS:
+        raise FormatError(
+            f"{path}: 'rotations' is {rotations!r}, not a whole number of turns from 1 to {MAX_ROTATIONS}"
+        )
+    simulator.rotations = rotations
     return simulator
 
 
@@ -102,7 +111,7 @@ def _check_finite_state(simulator, path) -> None:
             raise FormatError(f"{path}: {name!r} holds NaN or inf; the model cannot be used")
 
 
-def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=None) -> Path:
+def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=None, rotations=None) -> Path:
     """Copy a model file without its optimiser and random state (a few MB, for shipping).
 
     What the run was (step, training settings, data hash, loss history) stays, under
@@ -110,6 +119,8 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
     file of a run saved before models stored `trained_properties`, adds them (its hash must
     be the run's), and its time step and gravity. `dt` (s) and `gravity` (3 numbers, m/s²)
     record those of a run saved before models stored them, when its data is not at hand.
+    `rotations`: the turns about gravity the model's network is averaged over unless `rollout`
+    or `evaluate` say otherwise (simulator.network_acceleration; the default 1, as trained).
     """
     from fignetctl.core.model.simulator import SimulatorConfig
     from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json, trajectory_largest_sides
@@ -137,6 +148,16 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
             raise SettingError("give both the time step and the gravity the model was trained at")
         recorded = dataclasses.replace(config, dt=float(dt), gravity=tuple(float(g) for g in gravity))
         payload["simulator_config"] = recorded.to_json()
+    if rotations is not None:
+        if (
+            isinstance(rotations, bool)
+            or not isinstance(rotations, int)
+            or not 1 <= rotations <= MAX_ROTATIONS
+        ):
+            raise SettingError(
+                f"rotations must be a whole number from 1 to {MAX_ROTATIONS}, not {rotations!r}"
+            )
+        payload["rotations"] = rotations
     return save_torch_payload(destination, payload)
 
 

@@ -271,6 +271,34 @@ def test_export_records_the_time_step_and_gravity_of_a_run_saved_without_them(bo
     assert not (tmp_path / "half.pt").exists() and not (tmp_path / "again.pt").exists()
 
 
+def test_a_model_file_records_the_turns_rollout_and_evaluate_average_it_over(box_file, tmp_path):
+    from click.testing import CliRunner
+
+    from fignetctl.cli import cli
+    from fignetctl.core.containers import save_torch_payload
+    from fignetctl.core.model.checkpoint import export_checkpoint, read_checkpoint_payload
+
+    make_trainer(box_file, TINY, _config(steps=1)).run(tmp_path / "run.pt")
+    assert load_checkpoint(tmp_path / "run.pt").rotations == 1  # as trained
+    export_checkpoint(tmp_path / "run.pt", tmp_path / "four.pt", rotations=4)
+    assert load_checkpoint(tmp_path / "four.pt").rotations == 4
+    for given, used in ((None, 4), ("1", 1), ("2", 2)):
+        flags = [] if given is None else ["--rotations", given]
+        result = CliRunner().invoke(
+            cli,
+            ["rollout", str(box_file), "--model", str(tmp_path / "four.pt"), "--steps", "1", *flags]
+            + ["--sim-scale", "1", "-o", str(tmp_path / f"r{given}.h5")],
+        )
+        assert result.exit_code == 0, result.output
+        assert read_trajectories(tmp_path / f"r{given}.h5").attrs["rotations"] == used
+    with pytest.raises(SettingError, match="whole number from 1 to 64"):
+        export_checkpoint(tmp_path / "run.pt", tmp_path / "bad.pt", rotations=0)
+    payload = read_checkpoint_payload(tmp_path / "four.pt")
+    save_torch_payload(tmp_path / "damaged.pt", {**payload, "rotations": 2.5})
+    with pytest.raises(FormatError, match="'rotations' is 2.5, not a whole number of turns from 1 to 64"):
+        load_checkpoint(tmp_path / "damaged.pt")
+
+
 def test_averaged_runs_hold_the_mean_weights_pooled_statistics_and_each_run(box_file, tmp_path):
     from fignetctl.core.model.checkpoint import average_checkpoints, read_checkpoint_payload
 

@@ -104,7 +104,10 @@ def main():
     )
     parser.add_argument("--model", default=None, help="model file (default: the bundled FIGNet*)")
     parser.add_argument(
-        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+        "--rotations",
+        type=int,
+        default=None,
+        help="average the network over this many turns about gravity (default: the model file's)",
     )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -112,8 +115,9 @@ def main():
         level=logging.ERROR
     )  # the paper's table is outside the model's: rollout warns on every scene
     model = load_model(args.model)
-    model.rotations = args.rotations
-    result = {"model": args.model or "bundled fignet-star-movi-b", "rotations": args.rotations}
+    if args.rotations is not None:
+        model.rotations = args.rotations
+    result = {"model": args.model or "bundled fignet-star-movi-b", "rotations": model.rotations}
     with tempfile.TemporaryDirectory() as folder:
         for name, paper in (("movi_b_materials", False), ("paper_fignet_star_table", True)):
             result[name] = measure(model, Path(folder), paper)

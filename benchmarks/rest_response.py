@@ -185,12 +185,16 @@ def main():
         help="also how far the step from rest under bfloat16 autocast lands from the float32 one",
     )
     parser.add_argument(
-        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+        "--rotations",
+        type=int,
+        default=None,
+        help="average the network over this many turns about gravity (default: the model file's)",
     )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    simulator.rotations = args.rotations
+    if args.rotations is not None:
+        simulator.rotations = args.rotations
     data = read_trajectories(args.data)
     physics = None
     if args.physics:
@@ -223,7 +227,12 @@ def main():
         raise SystemExit(
             f"no object rests in the last frame of the first {args.n} trajectories; try a larger -n"
         )
-    result = {"model": args.model, "rotations": args.rotations, "data": args.data, "speed_m_per_frame": SPEED}
+    result = {
+        "model": args.model,
+        "rotations": simulator.rotations,
+        "data": args.data,
+        "speed_m_per_frame": SPEED,
+    }
     for who, rows in found.items():
         if rows:
             kept = None if rows[0][1] is None else np.concatenate([row[1] for row in rows])

@@ -71,12 +71,16 @@ def main():
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--guards", action="store_true", help="free flight, keep-out and sleeping")
     parser.add_argument(
-        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+        "--rotations",
+        type=int,
+        default=None,
+        help="average the network over this many turns about gravity (default: the model file's)",
     )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_model(args.model)
-    simulator.rotations = args.rotations
+    if args.rotations is not None:
+        simulator.rotations = args.rotations
     rows = []
     for gap, subdivisions, mass in itertools.product(args.gaps, args.subdivisions, args.masses):
         scene = resting_box_scene(args.size, gap, subdivisions, mass)
@@ -97,7 +101,7 @@ def main():
             "size_m": args.size,
             "steps": args.steps,
             "guards": args.guards,
-            "rotations": args.rotations,
+            "rotations": simulator.rotations,
             "rows": rows,
         },
     )

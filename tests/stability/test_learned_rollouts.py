@@ -26,7 +26,8 @@ def model():
     import os
 
     simulator = load_model(os.environ.get("FIGNET_TEST_MODEL"))
-    simulator.rotations = int(os.environ.get("FIGNET_TEST_ROTATIONS", "1"))
+    if "FIGNET_TEST_ROTATIONS" in os.environ:  # else the model file's own (1 unless it records more)
+        simulator.rotations = int(os.environ["FIGNET_TEST_ROTATIONS"])
     return simulator
 
 

@@ -90,15 +90,16 @@ def rollout_trajectory(
     trained = getattr(simulator, "trained_properties", None)
     scale = froude.auto_scale(data, key, trained) if sim_scale == "auto" else float(sim_scale)
     ratio = froude.gravity_ratio(data.gravity, simulator.config.gravity, where)
+    mapped = scale != 1.0 or ratio != 1.0
     simulated = data
-    if scale != 1.0 or ratio != 1.0:
+    if mapped:
         simulated, history = froude.scaled_scene(data, key, scale, ratio)
     scene = scene_from_trajectory(simulated, key, simulator.config)
     warn_untrained_properties(simulator, [data.trajectories[key]])
     guards = guards_for(step_dt, simulated.gravity, sleep, free_flight, keep_out)
 
     def result(frames):
-        if scale != 1.0 or ratio != 1.0:
+        if mapped:
             frames = froude.unscaled_frames(frames, history, scale, ratio)
         return rollout_result(
             data, key, *frames, simulator, step_dt / froude.time_factor(scale, ratio), scale, ratio

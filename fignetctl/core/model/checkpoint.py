@@ -35,6 +35,13 @@ from fignetctl.errors import FormatError, SettingError
 
 MAX_ROTATIONS = 64
 """The most turns about gravity a model file may ask its network to be averaged over."""
+
+
+def _whole_turns(value) -> bool:
+    """True for a number of turns a model file may record: an int from 1 to MAX_ROTATIONS."""
+    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MAX_ROTATIONS
+
+
 FORMAT = "fignetctl.model"
 FORMAT_VERSION = 1
 DEFAULT_BUNDLED = "fignet-star-movi-b"
@@ -96,7 +103,7 @@ def _simulator_from_payload(payload, path):
         raise weights_do_not_fit(path, error) from None
     _check_finite_state(simulator, path)
     rotations = payload.get("rotations", 1)
-    if isinstance(rotations, bool) or not isinstance(rotations, int) or not 1 <= rotations <= MAX_ROTATIONS:
+    if not _whole_turns(rotations):
         raise FormatError(
             f"{path}: 'rotations' is {rotations!r}, not a whole number of turns from 1 to {MAX_ROTATIONS}"
         )
@@ -149,11 +156,7 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
         recorded = dataclasses.replace(config, dt=float(dt), gravity=tuple(float(g) for g in gravity))
         payload["simulator_config"] = recorded.to_json()
     if rotations is not None:
-        if (
-            isinstance(rotations, bool)
-            or not isinstance(rotations, int)
-            or not 1 <= rotations <= MAX_ROTATIONS
-        ):
+        if not _whole_turns(rotations):
             raise SettingError(
                 f"rotations must be a whole number from 1 to {MAX_ROTATIONS}, not {rotations!r}"
             )

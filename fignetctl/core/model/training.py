@@ -39,7 +39,7 @@ from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.network import silence
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
-from fignetctl.core.model.scene_graph import build_scene_graph, rigid_point_velocities
+from fignetctl.core.model.scene_graph import NODE_NODE, build_scene_graph, rigid_point_velocities
 from fignetctl.core.model.simulator import (
     LearnedSimulator,
     SimulatorConfig,
@@ -905,7 +905,8 @@ def _load_weights(simulator, path) -> int:
     decodes the whole correction where this run decodes the change from free motion, or the
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
-    run starts from the source's predictions. Returns the source's processor blocks."""
+    run starts from the source's predictions. So does a FIGNet run from a FIGNet* source
+    (`surface_edges_grafted`). Returns the source's processor blocks."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -923,19 +924,47 @@ def _load_weights(simulator, path) -> int:
     blocks = given.message_passing_steps
     deepened = dataclasses.replace(given, message_passing_steps=own.message_passing_steps)
     grown = own.message_passing_steps > blocks and deepened == own
+    grafted = simulator.config.graph.surface_edges and not source.config.graph.surface_edges
+    weights = surface_edges_grafted(source.state_dict(), simulator) if grafted else source.state_dict()
     try:
-        missing, unexpected = simulator.load_state_dict(source.state_dict(), strict=not grown)
+        missing, unexpected = simulator.load_state_dict(weights, strict=not (grown or grafted))
         new_blocks = tuple(f"network.processor.{k}." for k in range(blocks, own.message_passing_steps))
-        if unexpected or any(not key.startswith(new_blocks) for key in missing):
-            raise RuntimeError(f"the model file's weights do not fit: {[*unexpected, *missing][0]}")
+        added = [
+            key for key in missing if not key.startswith(new_blocks) and not (grafted and NODE_NODE in key)
+        ]
+        if unexpected or added:
+            raise RuntimeError(f"the model file's weights do not fit: {[*unexpected, *added][0]}")
         for block in simulator.network.processor[blocks:]:  # after the source's blocks: identity
             silence(block)
+        if grafted:
+            for block in simulator.network.processor:
+                silence(block.edge_updates[NODE_NODE])
     except RuntimeError as error:
         raise FignetError(
             f"{path}: its network differs from the one asked for (`model`, `size`, "
             f"`message_passing_steps`); give the same ones ({str(error).splitlines()[0]})"
         ) from None
     return blocks
+
+
+def surface_edges_grafted(weights: dict, simulator) -> dict:
+    """A FIGNet* model's `weights` widened to `simulator`'s FIGNet, which also passes messages
+    along each mesh's surface edges (node_node): each node update's first layer takes the
+    source's columns for the node latent and the edge sets both have, and `simulator`'s own
+    initial ones for the node_node messages. The node_node encoder, edge updates and normalizer
+    are left to `simulator`'s initialisation; `_load_weights` then silences the edge updates, so
+    the node_node messages start at zero and the network predicts what the source does."""
+    own = simulator.state_dict()
+    names = simulator.network.signature.edge_set_names  # the node update's message order
+    source_names = [name for name in names if name != NODE_NODE]
+    latent = simulator.config.network.latent_size
+    widened = dict(weights)
+    for key, value in weights.items():
+        if key.endswith("node_update.0.0.weight"):
+            source_parts = dict(zip(["node", *source_names], value.split(latent, dim=1), strict=True))
+            own_parts = dict(zip(["node", *names], own[key].split(latent, dim=1), strict=True))
+            widened[key] = torch.cat([source_parts.get(n, own_parts[n]) for n in ["node", *names]], dim=1)
+    return widened
 
 
 def simulator_config_for(

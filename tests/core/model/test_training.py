@@ -429,12 +429,43 @@ def test_init_from_starts_a_new_run_from_a_models_weights(box_file, tmp_path):
     stored_count = first.simulator.acceleration_normalizer.count.item()
     tuned.train_step()  # its first steps add to the file's normalizer sums
     assert tuned.simulator.acceleration_normalizer.count.item() > stored_count > 0
-    other = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, True))
+    wider = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, latent_size=16))
     with pytest.raises(FignetError, match="network differs"):
-        make_trainer(box_file, other, _config(), init_from=tmp_path / "first.pt")
+        make_trainer(box_file, wider, _config(), init_from=tmp_path / "first.pt")
     log_mass = dataclasses.replace(TINY, graph=GraphConfig(0.1, False, log_mass=True))
     with pytest.raises(FignetError, match=r"`mass_feature` \(kg\)"):
         make_trainer(box_file, log_mass, _config(), init_from=tmp_path / "first.pt")
+
+
+def test_a_fignet_from_a_fignet_star_starts_with_silent_surface_edges(box_file, tmp_path):
+    star = make_trainer(box_file, TINY, _config())
+    star.run(tmp_path / "star.pt")
+    fignet_config = dataclasses.replace(TINY, graph=GraphConfig(0.1, True))
+    fignet = make_trainer(box_file, fignet_config, _config(), init_from=tmp_path / "star.pt")
+    weights, source = fignet.simulator.state_dict(), star.simulator.state_dict()
+    latent = TINY.network.latent_size
+    for name, value in source.items():
+        if name.endswith(
+            "node_update.0.0.weight"
+        ):  # node, face_face, mesh_to_object | node_node | object_to_mesh
+            torch.testing.assert_close(weights[name][:, : 3 * latent], value[:, : 3 * latent], rtol=0, atol=0)
+            torch.testing.assert_close(weights[name][:, 4 * latent :], value[:, 3 * latent :], rtol=0, atol=0)
+            assert weights[name][:, 3 * latent : 4 * latent].abs().sum() > 0
+        else:
+            torch.testing.assert_close(weights[name], value, rtol=0, atol=0)
+    assert fignet.batches[0]["graph"].edge_sets["node_node"].num_edges > 0
+    star.simulator.train(), fignet.simulator.train()
+    fresh = make_trainer(box_file, TINY, _config(), init_from=tmp_path / "star.pt")
+    fresh.simulator.train()
+    # the same examples: the surface edges' messages are zero, so the loss is the FIGNet*'s ...
+    assert fignet.train_step() == pytest.approx(fresh.train_step(), rel=1e-6)
+    scales = [
+        block.edge_updates["node_node"][1].layer_norm.weight for block in fignet.simulator.network.processor
+    ]
+    assert all(scale.abs().max() > 0 for scale in scales)  # ... and they grow from there
+    fignet.run(tmp_path / "fignet.pt")
+    with pytest.raises(FignetError, match="network differs"):  # not the other way round
+        make_trainer(box_file, TINY, _config(), init_from=tmp_path / "fignet.pt")
 
 
 def test_init_from_a_model_of_fewer_blocks_adds_blocks_that_start_as_identity(box_file, tmp_path):

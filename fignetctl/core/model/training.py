@@ -905,8 +905,8 @@ def _load_weights(simulator, path) -> int:
     decodes the whole correction where this run decodes the change from free motion, or the
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
-    run starts from the source's predictions. So does a FIGNet run from a FIGNet* source
-    (`surface_edges_grafted`). Returns the source's processor blocks."""
+    run starts from the source's predictions. So does a FIGNet run from a FIGNet* source, whose
+    surface edges' messages start shut out (`surface_edges_grafted`). Returns the source's processor blocks."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -936,9 +936,6 @@ def _load_weights(simulator, path) -> int:
             raise RuntimeError(f"the model file's weights do not fit: {[*unexpected, *added][0]}")
         for block in simulator.network.processor[blocks:]:  # after the source's blocks: identity
             silence(block)
-        if grafted:
-            for block in simulator.network.processor:
-                silence(block.edge_updates[NODE_NODE])
     except RuntimeError as error:
         raise FignetError(
             f"{path}: its network differs from the one asked for (`model`, `size`, "
@@ -950,20 +947,20 @@ def _load_weights(simulator, path) -> int:
 def surface_edges_grafted(weights: dict, simulator) -> dict:
     """A FIGNet* model's `weights` widened to `simulator`'s FIGNet, which also passes messages
     along each mesh's surface edges (node_node): each node update's first layer takes the
-    source's columns for the node latent and the edge sets both have, and `simulator`'s own
-    initial ones for the node_node messages. The node_node encoder, edge updates and normalizer
-    are left to `simulator`'s initialisation; `_load_weights` then silences the edge updates, so
-    the node_node messages start at zero and the network predicts what the source does."""
-    own = simulator.state_dict()
+    source's columns for the node latent and the edge sets both have, and zeros for the
+    node_node messages, so the network predicts what the source does. The node_node encoder,
+    edge updates and normalizer keep `simulator`'s initialisation: the messages flow from the
+    start and the zero columns, which get their gradients, let them in (as zero-initialised
+    adapters do)."""
     names = simulator.network.signature.edge_set_names  # the node update's message order
     source_names = [name for name in names if name != NODE_NODE]
     latent = simulator.config.network.latent_size
     widened = dict(weights)
     for key, value in weights.items():
         if key.endswith("node_update.0.0.weight"):
-            source_parts = dict(zip(["node", *source_names], value.split(latent, dim=1), strict=True))
-            own_parts = dict(zip(["node", *names], own[key].split(latent, dim=1), strict=True))
-            widened[key] = torch.cat([source_parts.get(n, own_parts[n]) for n in ["node", *names]], dim=1)
+            parts = dict(zip(["node", *source_names], value.split(latent, dim=1), strict=True))
+            parts[NODE_NODE] = torch.zeros_like(parts["node"])
+            widened[key] = torch.cat([parts[name] for name in ["node", *names]], dim=1)
     return widened
 
 

@@ -83,12 +83,16 @@ def main():
         help="decimate the meshes to at most this many faces instead of the model file's (0: keep them whole)",
     )
     parser.add_argument(
-        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
+        "--rotations",
+        type=int,
+        default=None,
+        help="average the network over this many turns about gravity (default: the model file's)",
     )
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    simulator.rotations = args.rotations
+    if args.rotations is not None:
+        simulator.rotations = args.rotations
     meshes = {"decimation": args.decimation or simulator.config.decimation}
     if args.max_faces is not None:
         meshes["max_faces_per_object"] = args.max_faces or None
@@ -121,7 +125,7 @@ def main():
             "free_flight": args.free_flight,
             "keep_out": args.keep_out,
             "sleep": args.sleep,
-            "rotations": args.rotations,
+            "rotations": simulator.rotations,
             "decimation": simulator.config.decimation,
             "max_faces": simulator.config.max_faces_per_object,
             "summary": summary,

@@ -435,8 +435,8 @@ def sweep_decimation(data_path, config: TradeoffSettings, on_progress=None, face
                 )
             )
     notes = [
-        "the bundled FIGNet* was trained on meshes decimated to at most 256 faces and is weak "
-        "(docs/simulator.md: level with a constant-velocity baseline); settings other than 256 are out of its training distribution",
+        "the bundled FIGNet* was trained on meshes decimated to at most 256 faces; "
+        "settings other than 256 are out of its training distribution",
         "ground truth: PyBullet on the full meshes (convex decomposition, as make-dataset), so no setting matches it by construction",
     ]
     return rollout_sweep_result("decimation", "faces per object n_f", points, notes, config, data_path)
@@ -474,7 +474,8 @@ def sweep_architecture(data_path, config: TradeoffSettings, on_progress=None) ->
         point["train_step_ms"] = model["times_ms"]["train_step_ms"]
         point["edges_total"] = model["edges"]["total"]
     notes = [
-        "bundled checkpoints: FIGNet* 7000 training steps, FIGNet 4250 (docs/simulator.md); both weak",
+        "bundled checkpoints: FIGNet is FIGNet*'s lineage with surface edges for its last 1000 steps "
+        "(docs/simulator.md, 'The bundled checkpoints')",
         f"memory and train-step figures: bench-memory (benchmark.run_benchmark), {config.trajectories} (trajectory, frame) pairs × {config.repeats} repeats",
     ]
     return rollout_sweep_result("architecture", "FIGNet vs FIGNet*", points, notes, config, data_path)

@@ -4,6 +4,7 @@ a model that steps another time than its frames."""
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,8 @@ from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.checkpoint import save_checkpoint
 from fignetctl.core.obj import write_obj
 from fignetctl.core.trajectory import read_trajectories
+
+TWO_FRAME_MODEL = Path(__file__).parents[2] / "benchmarks/results/two-frame-models/fignet-star-movi-b.pt"
 
 FRAMES, FRAME_RATE = 24, 12
 
@@ -97,10 +100,12 @@ def test_a_kubric_scene_becomes_a_trajectory_that_show_and_evaluate_read(scene, 
     evaluated = CliRunner().invoke(cli, ["evaluate", str(out), "--max-trajectories", "1", "-o", str(report)])
     assert evaluated.exit_code != 0 and not report.exists()  # the bundled model steps 1/30 s, MOVi 1/12 s
     assert "its frames are 0.0833333 s apart, the model steps 0.0333333 s" in evaluated.output
-    any_step = tmp_path / "any-step.pt"  # a model that records no time step takes the file's
-    bundled = load_model()
-    bundled.config = dataclasses.replace(bundled.config, dt=None, gravity=None)
-    save_checkpoint(any_step, bundled)
+    # a positions-state model that records no time step takes the file's (a velocity-state one
+    # cannot: its inputs are velocities in m/s)
+    any_step = tmp_path / "any-step.pt"
+    two_frames = load_model(TWO_FRAME_MODEL)
+    two_frames.config = dataclasses.replace(two_frames.config, dt=None, gravity=None)
+    save_checkpoint(any_step, two_frames)
     evaluated = CliRunner().invoke(
         cli, ["evaluate", str(out), "--model", str(any_step), "--max-trajectories", "1", "-o", str(report)]
     )

@@ -269,8 +269,7 @@ def concatenated_block_forward(
     block: GraphNetBlock, node_latents: torch.Tensor, edge_latents: dict[str, torch.Tensor], graph: MultiGraph
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """`GraphNetBlock.forward` as the module docstring writes it, each MLP on its concatenated
-    input: the reference the block is tested against, and the network the bundled models were
-    trained with (the training benchmark's baseline)."""
+    input: the reference the block is tested against, and the training benchmark's baseline."""
     new_edge_latents = {}
     summed_messages = []
     for name, edge_update in block.edge_updates.items():

@@ -4,7 +4,7 @@ The network reads mass, friction and restitution as node features, so it only kn
 values its training data held. MOVi-B has two materials for moving objects (friction 0.4 and
 restitution 0.3, or 0.8 and 0.7) and one for the floor (0.3, 0.5): anything else is
 extrapolation, even a pair whose values each lie between the materials' (friction 0.5 with
-restitution 0.5). Measured on the bundled FIGNet* (docs/simulator.md, "Physical properties"):
+restitution 0.5). Measured on the two-frame FIGNet* (docs/simulator.md, "Physical properties"):
 a resting cube of friction 0.5 and restitution 0.5 slid 13 cm in 30 steps; of MOVi-B's rubber,
 7 mm.
 

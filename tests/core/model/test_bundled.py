@@ -20,7 +20,9 @@ def test_bundled_checkpoints_are_small_and_differ_only_in_surface_edges():
         assert path.stat().st_size < 5 * 2**20
         payload = read_checkpoint_payload(path)  # checks the weights against their checksum
         assert "training_state" not in payload and payload.get(WEIGHTS_HASH_KEY)
-        configs[name] = load_model(name).config
+        model = load_model(name)
+        assert model.rotations == 4 and model.trained_properties  # what rollout runs them with
+        configs[name] = model.config
     star, full = configs["fignet-star-movi-b"], configs["fignet-movi-b"]
     assert not star.graph.surface_edges and full.graph.surface_edges
     assert dataclasses.replace(full, graph=star.graph) == star
@@ -38,11 +40,14 @@ def test_default_model_rolls_a_box_dropped_on_the_floor_out_finitely():
 
 
 def test_make_checkpoints_trains_the_bundled_models_settings():
-    """`make checkpoints` reproduces the bundled models only if its flags give every setting in
-    which they differ from `train`'s defaults: its last stage's flags must build their config."""
+    """`make checkpoints` reproduces the bundled models only if its lineage's commands are ones
+    `train` takes, each stage starts from the one before, and the last stage of each model gives
+    every setting in which the bundled model differs from `train`'s defaults."""
+    import re
     import shlex
     import shutil
     import subprocess
+    import sys
     from pathlib import Path
 
     import pytest
@@ -54,24 +59,47 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
     if shutil.which("make") is None:
         pytest.skip("make is not installed")
     root = Path(__file__).resolve().parents[3]
-    printed = subprocess.run(
+    made = subprocess.run(
         ["make", "-n", "--no-print-directory", "checkpoints", "DATA=/nonexistent"],
         cwd=root,
         capture_output=True,
         text=True,
         check=True,
     ).stdout
-    last_stage = {}
+    assert "scripts/velocity_lineage.py --data /nonexistent --out /nonexistent/lineage" in made
+    exports = [shlex.split(line) for line in made.splitlines() if "export_model.py" in line]
+    exported = {Path(words[3]).stem: Path(words[2]) for words in exports}
+    assert sorted(exported) == sorted(BUNDLED) and all(
+        words[-2:] == ["--rotations", "4"] for words in exports
+    )
+    printed = subprocess.run(
+        [
+            sys.executable,
+            "scripts/velocity_lineage.py",
+            "--dry-run",
+            "--data",
+            "/nonexistent",
+            "--out",
+            "/nonexistent/lineage",
+        ],
+        cwd=root,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    trained = {}  # run file -> its settings
     for line in printed.splitlines():
         words = shlex.split(line)
-        if len(words) > 2 and words[0].endswith("fignetctl") and words[1] == "train":
-            output = words[words.index("-o") + 1]
-            last_stage[Path(output).stem.removesuffix("-tuned").removesuffix("-base")] = words[2:]
-    assert sorted(last_stage) == sorted(BUNDLED)
-    for name, arguments in last_stage.items():
-        values = train.make_context("train", arguments).params
-        settings = options.settings_from(stage.Settings, values)
+        if "train" in words and words[words.index("train") - 1].endswith("fignetctl"):
+            arguments = words[words.index("train") + 1 :]
+            values = train.make_context("train", arguments).params
+            finished = {re.sub(r"(-seed-\d+)?\.run\.pt$", ".pt", str(run)) for run in trained}
+            assert values["init_from"] in finished if trained else values["init_from"] is None
+            trained[Path(values["output"])] = options.settings_from(stage.Settings, values)
+    assert len(trained) == 17  # fifteen stages, two of them two seeds each
+    for name, final in exported.items():
+        settings = trained[final.with_name(final.stem + ".run.pt")]
         config, training = stage.configs(settings)
         bundled = load_model(name).config
         assert dataclasses.replace(config, dt=bundled.dt, gravity=bundled.gravity) == bundled, name
-        assert training.precision == "fp32" and training.frame_sampling == "uniform"
+        assert training.rest_weight == 100 and training.frame_sampling == "uniform"

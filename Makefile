@@ -64,6 +64,11 @@ $(DATA)/movi-b-test.h5: | setup
 	mkdir -p $(DATA)
 	$(BIN)/fignetctl make-dataset --preset movi-b -n 40 --seed 2 --split test -o $@
 
+# Its first 10 trajectories recorded for 7 s, so 200-step rollouts have the recording beside them.
+$(DATA)/movi-b-test-7s.h5: | setup
+	mkdir -p $(DATA)
+	$(BIN)/fignetctl make-dataset --preset movi-b -n 10 --seed 2 --split test --duration 7 -o $@
+
 $(DATA)/%-movi-b-base.pt: $(DATA)/movi-b-train.h5
 	$(BIN)/fignetctl train $< -o $@ --model $* $(TRAIN_FLAGS) --log-csv $(DATA)/$*-base-loss.csv $(if $(wildcard $@),--resume)
 
@@ -122,14 +127,14 @@ checkpoints: $(DATA)/movi-b-train.h5 $(DATA)/movi-b-train-4k.h5 $(DATA)/movi-b-t
 # The bundled models on the held-out set (with and without the guards; FIGNet* beside the
 # PyBullet ceilings), the plot of their error curves, 200-step rollouts as `rollout` runs them,
 # and the suite's learned hard cases (docs/simulator.md, docs/stability.md).
-evaluate-checkpoints: $(DATA)/movi-b-test.h5
+evaluate-checkpoints: $(DATA)/movi-b-test.h5 $(DATA)/movi-b-test-7s.h5
 	$(BIN)/fignetctl evaluate $< --model fignet-star-movi-b --with-guards --ceilings -o docs/results/fignet-star-movi-b-test.json --overwrite
 	$(BIN)/fignetctl evaluate $< --model fignet-movi-b --with-guards -o docs/results/fignet-movi-b-test.json --overwrite
 	$(BIN)/python benchmarks/error_curves.py docs/results/fignet-star-movi-b-test.json="FIGNet*" \
 	    docs/results/fignet-movi-b-test.json="FIGNet" docs/results/two-frame-fignet-star-movi-b-test.json="FIGNet*, two frames" \
 	    --plot docs/images/error-curves-movi-b.png
-	$(BIN)/python benchmarks/long_rollout.py --model fignetctl/assets/models/fignet-star-movi-b.pt --data $< -n 10 --steps 200 \
-	    --free-flight --keep-out --sleep --out docs/results/long-rollout-fignet-star.json
+	$(BIN)/python benchmarks/long_rollout.py --model fignetctl/assets/models/fignet-star-movi-b.pt --data $(DATA)/movi-b-test-7s.h5 \
+	    -n 10 --steps 200 --free-flight --keep-out --sleep --out docs/results/long-rollout-fignet-star.json
 	$(BIN)/python benchmarks/learned_hard_cases.py --out docs/results/learned-hard-cases.json
 
 evaluate-two-frame-checkpoints: $(DATA)/movi-b-test.h5

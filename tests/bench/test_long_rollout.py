@@ -1,4 +1,4 @@
-"""benchmarks/long_rollout.py: the floor depths it reports, of the rollout and of the recording."""
+"""benchmarks/long_rollout.py: the floor depths and drifts it reports, of the rollout and of the recording."""
 
 import itertools
 
@@ -34,3 +34,21 @@ def test_the_recorded_depth_is_the_deepest_corner_of_the_recorded_box_below_the_
     assert lowest < -0.1  # the recording went through the floor within the frames
     np.testing.assert_allclose(row["recorded_max_penetration_m"], -lowest, atol=1e-5)
     assert np.isfinite(row["max_penetration_m"]) and row["max_penetration_m"] >= 0
+
+
+def test_the_recorded_drift_is_the_recording_s_own_motion_over_the_rollout_s_last_frames():
+    """A box recorded falling for 30 frames: over a 12-step rollout's last 14 frames (all of
+    them, shorter than the 50-frame window) the recording moves it by its own fall; a 40-step
+    rollout outlasts the recording and reports no recorded drift."""
+    data = box_drop_file(frames=30, dt=1 / 30, height=0.9)
+    scene = scene_from_trajectory(data, "00000", SimulatorConfig())
+    simulator = untrained_simulator(scene)
+    guards = guards_for(data.dt, data.gravity, False, False, False)
+    row = long_rollout.one_trajectory(simulator, scene, 12, guards=guards)
+    recorded = data.trajectories["00000"].positions[:, 1]
+    expected = np.linalg.norm(recorded[13] - recorded[0])
+    assert expected > 0.1
+    np.testing.assert_allclose(row["recorded_drift_last_50_steps_m"], [expected], atol=1e-4)
+    assert "recorded_drift_last_50_steps_m" not in long_rollout.one_trajectory(
+        simulator, scene, 40, guards=guards
+    )

@@ -71,9 +71,7 @@ def model_path(out: Path, stage_name: str) -> Path:
     return out / f"{stage_name}.pt"
 
 
-def train_command(
-    stage: Stage, data: Path, out: Path, seed: int, run: Path, start: Path | None, resume: bool
-):
+def train_command(stage: Stage, data: Path, seed: int, run: Path, start: Path | None, resume: bool):
     """The `fignetctl train` command line of one run of `stage` into `run`."""
     fignetctl = str(Path(sys.executable).with_name("fignetctl"))
     launcher = [fignetctl]
@@ -103,7 +101,7 @@ def stage_runs(stage: Stage, data: Path, out: Path):
     for seed in stage.seeds:
         suffix = f"-seed-{seed}" if len(stage.seeds) > 1 else ""
         run = out / f"{stage.name}{suffix}.run.pt"
-        runs.append((train_command(stage, data, out, seed, run, start, run.exists()), run))
+        runs.append((train_command(stage, data, seed, run, start, run.exists()), run))
     return runs
 
 

@@ -21,6 +21,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
 import tests.stability.test_learned_rollouts as cases  # noqa: E402
+from fignetctl.bench.options import add_rotations_option, apply_rotations  # noqa: E402
 from fignetctl.core.atomic import write_json  # noqa: E402
 from fignetctl.core.model.apply import load_model, rollout_trajectory  # noqa: E402
 from fignetctl.core.model.rollout import RolloutError  # noqa: E402
@@ -103,20 +104,14 @@ def main():
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--model", default=None, help="model file (default: the bundled FIGNet*)")
-    parser.add_argument(
-        "--rotations",
-        type=int,
-        default=None,
-        help="average the network over this many turns about gravity (default: the model file's)",
-    )
+    add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     logging.basicConfig(
         level=logging.ERROR
     )  # the paper's table is outside the model's: rollout warns on every scene
     model = load_model(args.model)
-    if args.rotations is not None:
-        model.rotations = args.rotations
+    apply_rotations(model, args.rotations)
     result = {"model": args.model or "bundled fignet-star-movi-b", "rotations": model.rotations}
     with tempfile.TemporaryDirectory() as folder:
         for name, paper in (("movi_b_materials", False), ("paper_fignet_star_table", True)):

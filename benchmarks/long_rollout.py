@@ -18,6 +18,7 @@ import json
 
 import numpy as np
 
+from fignetctl.bench.options import add_rotations_option, apply_rotations
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
@@ -89,17 +90,11 @@ def main():
         type=int,
         help="decimate the meshes to at most this many faces instead of the model file's (0: keep them whole)",
     )
-    parser.add_argument(
-        "--rotations",
-        type=int,
-        default=None,
-        help="average the network over this many turns about gravity (default: the model file's)",
-    )
+    add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    if args.rotations is not None:
-        simulator.rotations = args.rotations
+    apply_rotations(simulator, args.rotations)
     meshes = {"decimation": args.decimation or simulator.config.decimation}
     if args.max_faces is not None:
         meshes["max_faces_per_object"] = args.max_faces or None

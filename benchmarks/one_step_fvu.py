@@ -18,6 +18,7 @@ import argparse
 
 import h5py
 
+from fignetctl.bench.options import add_rotations_option, apply_rotations
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.learnability import (
@@ -37,21 +38,19 @@ def main() -> None:
     parser.add_argument("data", nargs="+", help="trajectory files")
     parser.add_argument("-n", "--trajectories", type=int, default=6, help="the first n of each file")
     parser.add_argument("--frames", type=int, default=20, help="frames per trajectory")
-    parser.add_argument(
-        "--rotations", type=int, default=1, help="average the network over this many turns about gravity"
-    )
+    add_rotations_option(parser)
     parser.add_argument(
         "--rigid", action="store_true", help="also the rigid FVU, over every frame of the n trajectories"
     )
     parser.add_argument("-o", "--output", default=None, help="json to write")
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    simulator.rotations = args.rotations
+    rotations = apply_rotations(simulator, args.rotations)
     results = {
         "model": args.model,
         "trajectories": args.trajectories,
         "frames": args.frames,
-        "rotations": args.rotations,
+        "rotations": rotations,
         "files": {},
     }
     for path in args.data:

@@ -35,6 +35,7 @@ import json
 
 import numpy as np
 
+from fignetctl.bench.options import add_rotations_option, apply_rotations
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.checkpoint import load_checkpoint
 from fignetctl.core.model.rollout import guards_for, rollout
@@ -184,17 +185,11 @@ def main():
         action="store_true",
         help="also how far the step from rest under bfloat16 autocast lands from the float32 one",
     )
-    parser.add_argument(
-        "--rotations",
-        type=int,
-        default=None,
-        help="average the network over this many turns about gravity (default: the model file's)",
-    )
+    add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_checkpoint(args.model)
-    if args.rotations is not None:
-        simulator.rotations = args.rotations
+    apply_rotations(simulator, args.rotations)
     data = read_trajectories(args.data)
     physics = None
     if args.physics:

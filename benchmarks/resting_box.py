@@ -26,6 +26,7 @@ import json
 import numpy as np
 import trimesh
 
+from fignetctl.bench.options import add_rotations_option, apply_rotations
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.apply import load_model, rollout_trajectory
 from fignetctl.core.scene_building import ACTIVE, Properties, build_scene, drop_history
@@ -70,17 +71,11 @@ def main():
     parser.add_argument("--masses", type=float, nargs="+", default=[1.0, 5.0, 20.0], metavar="KG")
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--guards", action="store_true", help="free flight, keep-out and sleeping")
-    parser.add_argument(
-        "--rotations",
-        type=int,
-        default=None,
-        help="average the network over this many turns about gravity (default: the model file's)",
-    )
+    add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     simulator = load_model(args.model)
-    if args.rotations is not None:
-        simulator.rotations = args.rotations
+    apply_rotations(simulator, args.rotations)
     rows = []
     for gap, subdivisions, mass in itertools.product(args.gaps, args.subdivisions, args.masses):
         scene = resting_box_scene(args.size, gap, subdivisions, mass)

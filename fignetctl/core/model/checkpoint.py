@@ -29,18 +29,10 @@ from fignetctl.core.containers import (
     weights_do_not_fit,
     write_torch_document,
 )
+from fignetctl.core.model.simulator import MAX_ROTATIONS, whole_turns
 from fignetctl.core.model.trained_ranges import ranges_from_json
 from fignetctl.core.provenance import as_strings, file_sha256, stamp
 from fignetctl.errors import FormatError, SettingError
-
-MAX_ROTATIONS = 64
-"""The most turns about gravity a model file may ask its network to be averaged over."""
-
-
-def _whole_turns(value) -> bool:
-    """True for a number of turns a model file may record: an int from 1 to MAX_ROTATIONS."""
-    return isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= MAX_ROTATIONS
-
 
 FORMAT = "fignetctl.model"
 FORMAT_VERSION = 1
@@ -103,7 +95,7 @@ def _simulator_from_payload(payload, path):
         raise weights_do_not_fit(path, error) from None
     _check_finite_state(simulator, path)
     rotations = payload.get("rotations", 1)
-    if not _whole_turns(rotations):
+    if not whole_turns(rotations):
         raise FormatError(
             f"{path}: 'rotations' is {rotations!r}, not a whole number of turns from 1 to {MAX_ROTATIONS}"
         )
@@ -156,7 +148,7 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
         recorded = dataclasses.replace(config, dt=float(dt), gravity=tuple(float(g) for g in gravity))
         payload["simulator_config"] = recorded.to_json()
     if rotations is not None:
-        if not _whole_turns(rotations):
+        if not whole_turns(rotations):
             raise SettingError(
                 f"rotations must be a whole number from 1 to {MAX_ROTATIONS}, not {rotations!r}"
             )

@@ -73,6 +73,8 @@ STATES = ("positions", "velocities")
 # Floor of every normalizer's std: features are in metres (per step) and material units, so a
 # spread below a micrometre is float rounding, which must not be blown up into signal.
 STD_EPSILON = 1e-6
+MAX_ROTATIONS = 64
+"""The most turns about gravity the network may be averaged over (`network_acceleration`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,12 +242,12 @@ class LearnedSimulator(nn.Module):
         K turns, where the network alone is only as equivariant as its training made it. Costs
         K network evaluations (one batch) per step; the graph is built once.
         """
+        if not whole_turns(self.rotations):
+            raise FignetError(
+                f"rotations must be a whole number of turns from 1 to {MAX_ROTATIONS}, not {self.rotations!r}"
+            )
         if self.rotations == 1:
             return self.acceleration_normalizer.inverse(self(graph))
-        if not (isinstance(self.rotations, numbers.Integral) and self.rotations > 1):
-            raise FignetError(
-                f"rotations must be a whole number of turns, at least 1, not {self.rotations!r}"
-            )
         turns = rotations_about_gravity(self.rotations, self.config.gravity).to(graph.node_features)
         answers = self.acceleration_normalizer.inverse(
             self(batch_graphs([rotated_graph(graph, turn) for turn in turns]))
@@ -364,6 +366,12 @@ class LearnedSimulator(nn.Module):
         if linear is None:
             return positions, quaternions, None, None
         return positions, quaternions, linear / self.config.dt, angular / self.config.dt
+
+
+def whole_turns(value) -> bool:
+    """True for a number of turns the network may be averaged over: a whole number from 1 to
+    MAX_ROTATIONS (numpy's integers too, not bools)."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and 1 <= value <= MAX_ROTATIONS
 
 
 def rotations_about_gravity(count, gravity=None) -> torch.Tensor:

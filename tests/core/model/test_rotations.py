@@ -9,7 +9,7 @@ import torch
 import trimesh
 
 from fignetctl.core.model.scene_graph import GraphConfig, build_scene_graph, rotated_graph, scene_geometry
-from fignetctl.core.model.simulator import LearnedSimulator, rotations_about_gravity
+from fignetctl.core.model.simulator import MAX_ROTATIONS, LearnedSimulator, rotations_about_gravity
 from fignetctl.core.model.training import simulator_config_for
 from fignetctl.core.transforms import matrix_to_quat, quat_multiply, random_quaternions
 from fignetctl.errors import FignetError
@@ -138,7 +138,7 @@ def test_one_rotation_is_the_network_as_it_is_and_more_change_the_answer():
     assert copy.rotations == 3
     copy.rotations = np.int64(2)  # any whole number will do
     assert copy.network_acceleration(graph).shape == plain.shape
-    for wrong in (0, 2.5):
+    for wrong in (0, 2.5, True, MAX_ROTATIONS + 1):
         copy.rotations = wrong
-        with pytest.raises(FignetError, match="at least 1"):
+        with pytest.raises(FignetError, match="from 1 to 64"):
             copy.network_acceleration(graph)

@@ -9,7 +9,7 @@ BIN    := $(VENV)/bin
 OUT    ?= out
 JOBS   ?= 2
 
-.PHONY: setup demo dataset-demo test bench checkpoints two-frame-checkpoints velocity-checkpoints evaluate-checkpoints evaluate-two-frame-checkpoints evaluate-velocity-checkpoint clean
+.PHONY: FORCE setup demo dataset-demo test bench checkpoints two-frame-checkpoints velocity-checkpoints evaluate-checkpoints evaluate-two-frame-checkpoints evaluate-velocity-checkpoint clean
 
 # torch is pinned and installed first: an open range would pull a CUDA build of several GB.
 $(BIN)/fignetctl: pyproject.toml
@@ -69,22 +69,27 @@ $(DATA)/movi-b-test-7s.h5: | setup
 	mkdir -p $(DATA)
 	$(BIN)/fignetctl make-dataset --preset movi-b -n 10 --seed 2 --split test --duration 7 -o $@
 
-$(DATA)/%-movi-b-base.pt: $(DATA)/movi-b-train.h5
+$(DATA)/%-movi-b-base.pt: $(DATA)/movi-b-train.h5 FORCE
 	$(BIN)/fignetctl train $< -o $@ --model $* $(TRAIN_FLAGS) --log-csv $(DATA)/$*-base-loss.csv $(if $(wildcard $@),--resume)
 
-$(DATA)/%-movi-b-tuned.pt: $(DATA)/%-movi-b-base.pt
+$(DATA)/%-movi-b-tuned.pt: $(DATA)/%-movi-b-base.pt FORCE
 	$(BIN)/fignetctl train $(DATA)/movi-b-train.h5 -o $@ --model $* $(TUNE_FLAGS) --log-csv $(DATA)/$*-tuned-loss.csv $(if $(wildcard $@),--resume,--init-from $<)
 
-$(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt
+$(DATA)/%-movi-b.pt: $(DATA)/%-movi-b-tuned.pt FORCE
 	$(BIN)/fignetctl train $(DATA)/movi-b-train.h5 -o $@ --model $* $(POLISH_FLAGS) --log-csv $(DATA)/$*-loss.csv $(if $(wildcard $@),--resume,--init-from $<)
 
-# Kept when make is interrupted: a half-trained model file is where `--resume` starts from.
+# Kept when make is interrupted: a half-trained model file is where `--resume` starts from. A model
+# file newer than its inputs may still be half-trained, so these recipes always run (FORCE):
+# `train --resume` goes on to the run's last step, and leaves a finished file untouched, so what
+# was built from it is not built again.
+FORCE:
 .PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt $(DATA)/%-movi-b.pt $(DATA)/%-movi-b-velocities.pt
 
-# The velocity-state models (not bundled yet; docs/simulator.md has their figures): 4000
-# trajectories (6.7x the bundled models' data), frame t and instantaneous velocities in, static
-# nodes that do not aggregate, MSE, graphs built by a worker process, bf16 where the CPU has it.
-# One torch thread: the worker takes the other core. Resumable (re-run the target).
+# The first velocity-state models (the bundled ones come from `make checkpoints` below;
+# docs/simulator.md has the figures of both): 4000 trajectories, frame t and instantaneous
+# velocities in, static nodes that do not aggregate, MSE, graphs built by a worker process, bf16
+# where the CPU has it. One torch thread: the worker takes the other core. Resumable (re-run the
+# target).
 VELOCITY_FLAGS := --size small --max-faces 256 --collision-radius 0.2 --state velocities --no-static-receivers --loss mse \
                   --decimation quadric --frame-sampling uniform \
                   --batch-size 8 --steps 8000 --checkpoint-every 250 --seed 0 --workers 1 --precision auto --learning-rate 1e-3 1e-4
@@ -93,7 +98,7 @@ $(DATA)/movi-b-train-4k.h5: | setup
 	mkdir -p $(DATA)
 	$(BIN)/fignetctl make-dataset --preset movi-b -n 4000 --seed 1 --jobs $(JOBS) -o $@
 
-$(DATA)/%-movi-b-velocities.pt: $(DATA)/movi-b-train-4k.h5
+$(DATA)/%-movi-b-velocities.pt: $(DATA)/movi-b-train-4k.h5 FORCE
 	OMP_NUM_THREADS=1 $(BIN)/fignetctl train $< -o $@ --model $* $(VELOCITY_FLAGS) --log-csv $(DATA)/$*-velocities-loss.csv $(if $(wildcard $@),--resume)
 
 velocity-checkpoints: $(DATA)/fignet-star-movi-b-velocities.pt $(DATA)/fignet-movi-b-velocities.pt

@@ -103,3 +103,34 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
         bundled = load_model(name).config
         assert dataclasses.replace(config, dt=bundled.dt, gravity=bundled.gravity) == bundled, name
         assert training.rest_weight == 100 and training.frame_sampling == "uniform"
+
+
+def test_make_resumes_a_model_file_newer_than_its_data():
+    """A training target whose model file is newer than its data may be half-trained (make was
+    interrupted): make must still run its recipe, which then resumes that file."""
+    import os
+    import shlex
+    import shutil
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    import pytest
+
+    if shutil.which("make") is None:
+        pytest.skip("make is not installed")
+    root = Path(__file__).resolve().parents[3]
+    with tempfile.TemporaryDirectory() as folder:
+        data = Path(folder)
+        for name, age in (("movi-b-train.h5", 100), ("fignet-star-movi-b-base.pt", 0)):
+            (data / name).write_bytes(b"")
+            os.utime(data / name, (1e9 - age, 1e9 - age))
+        made = subprocess.run(
+            ["make", "-n", "--no-print-directory", str(data / "fignet-star-movi-b-base.pt"), f"DATA={data}"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    trains = [shlex.split(line) for line in made.splitlines() if " train " in line]
+    assert len(trains) == 1 and trains[0][-1] == "--resume", made

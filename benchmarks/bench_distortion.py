@@ -27,7 +27,7 @@ from fignetctl.core.atomic import atomic_path
 from fignetctl.core.cameras import read_cameras
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from tests.core.synthetic_views import distort_image  # noqa: E402
+from tests.core.synthetic_views import distort_image
 
 FIGNETCTL = [str(Path(sys.executable).parent / "fignetctl")]
 

@@ -29,7 +29,7 @@ def motion_shares(motions, energy_shares=(0.5, 0.8, 0.9, 0.99), first_frames=30)
     ordered = np.cumsum(np.sort(energy)[::-1]) / energy.sum()
     first = np.concatenate([np.arange(len(m)) < first_frames for m in motions])
     return {
-        "frames": int(len(energy)),
+        "frames": len(energy),
         "fraction_of_frames_holding": {
             str(share): float((np.searchsorted(ordered, share) + 1) / len(energy)) for share in energy_shares
         },

@@ -17,8 +17,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' corpus and helpers
 
-from fignetctl.core.atomic import write_json  # noqa: E402
-from tests.fuzz_corpus import OUTCOMES, base_files, corpus, run_case  # noqa: E402
+from fignetctl.core.atomic import write_json
+from tests.fuzz_corpus import OUTCOMES, base_files, corpus, run_case
 
 
 def main() -> None:

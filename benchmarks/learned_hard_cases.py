@@ -20,12 +20,12 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
-import tests.stability.test_learned_rollouts as cases  # noqa: E402
-from fignetctl.bench.options import add_rotations_option, apply_rotations  # noqa: E402
-from fignetctl.core.atomic import write_json  # noqa: E402
-from fignetctl.core.model.apply import load_model, rollout_trajectory  # noqa: E402
-from fignetctl.core.model.rollout import RolloutError  # noqa: E402
-from fignetctl.core.trajectory import read_trajectories, write_trajectories  # noqa: E402
+import tests.stability.test_learned_rollouts as cases
+from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.core.atomic import write_json
+from fignetctl.core.model.apply import load_model, rollout_trajectory
+from fignetctl.core.model.rollout import RolloutError
+from fignetctl.core.trajectory import read_trajectories, write_trajectories
 
 PAPER = {"dynamic": (0.5, 0.5), "static": (0.5, 0.3)}  # friction, restitution (paper's FIGNet* table)
 

@@ -55,7 +55,7 @@ def one_trajectory(simulator, scene, steps, **options):
         "finite": finite,
         "max_penetration_m": float(max(0.0, floor - lowest_dynamic_z(scene, positions, quaternions).min())),
         "recorded_max_penetration_m": float(max(0.0, floor - recorded_low.min())),
-        "recorded_frames": int(len(recorded_low)),
+        "recorded_frames": len(recorded_low),
         "drift_last_50_steps_m": drift.round(4).tolist(),
     }
     if len(scene.positions) >= frames:  # the recording covers the rollout

@@ -735,7 +735,7 @@ def _nerf_curve_points(data: dict) -> list:
     points = []
     for run in data.get("results", []):
         for row in run.get("curve", []):
-            single = lambda v: {"median": float(v), "q25": float(v), "q75": float(v), "n": 1}  # noqa: E731
+            single = lambda v: {"median": float(v), "q25": float(v), "q75": float(v), "n": 1}
             points.append(
                 {
                     "setting": f"{run.get('preset', '?')} {row['step']}",

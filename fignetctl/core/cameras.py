@@ -55,7 +55,7 @@ class Cameras:
         """(N, 3) camera centres in world coordinates."""
         return self.c2w[:, :3, 3]
 
-    def subset(self, indices) -> "Cameras":
+    def subset(self, indices) -> Cameras:
         """The cameras at `indices` (the sparse points are kept)."""
         indices = np.asarray(indices)
         return dataclasses.replace(

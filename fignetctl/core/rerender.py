@@ -159,14 +159,14 @@ def make_warp(motion: ObjectMotion, t: int, volume: Volume, mode: str, device="c
     """The bending b(x) at step t as a torch warp: points (P, 3), directions (P, 3) -> both bent."""
     import torch
 
-    as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)
     rotation, position, origin = (
         as_tensor(motion.rotations[t]),
         as_tensor(motion.positions[t]),
         as_tensor(motion.origin),
     )
     lower, upper = as_tensor(volume.lower), as_tensor(volume.upper)
-    inside = lambda p: ((p >= lower) & (p <= upper)).all(dim=-1, keepdim=True)  # noqa: E731
+    inside = lambda p: ((p >= lower) & (p <= upper)).all(dim=-1, keepdim=True)
     empty = torch.full((3,), EMPTY_COORDINATE, device=device)  # outside any scene box: no density there
 
     def warp(points, directions):
@@ -296,7 +296,7 @@ class Rerenderer:
             out = render_rays(self.model, origins[bent], directions[bent], warp, box)
             for key in images:
                 images[key][bent] = out[key]
-        shape = lambda a, *rest: a.reshape(height, width, *rest)  # noqa: E731
+        shape = lambda a, *rest: a.reshape(height, width, *rest)
         return Frame(
             shape(images["rgb"], 3),
             shape(images["depth"]),

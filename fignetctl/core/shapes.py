@@ -31,8 +31,8 @@ import json
 import logging
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -446,9 +446,8 @@ def read_cached_asset(path: Path, name: str) -> ShapeAsset:
 
 def write_cache_file(path: Path, arrays: dict) -> None:
     """Write the arrays to an .npz atomically (readers never see a half-written file)."""
-    with atomic_path(path) as temporary:
-        with open(temporary, "wb") as handle:
-            np.savez(handle, **arrays)
+    with atomic_path(path) as temporary, open(temporary, "wb") as handle:
+        np.savez(handle, **arrays)
 
 
 def convex_parts_obj_path(asset: ShapeAsset, cache: Path) -> Path:

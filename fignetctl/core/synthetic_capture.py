@@ -83,7 +83,7 @@ class CaptureSettings:
     points: int = 4000  # GT points sampled into cameras.npz
     prompts_per_object: int = 3  # views with a point prompt per movable object (>= 2; at most views)
 
-    def validate(self) -> "CaptureSettings":
+    def validate(self) -> CaptureSettings:
         checks = [
             (self.views >= 2, f"views must be at least 2, got {self.views}"),
             (16 <= self.width <= 4096, f"width must be in 16..4096 pixels, got {self.width}"),

@@ -90,7 +90,7 @@ class Trajectory:
         """(O, 3) mass, friction, restitution per object."""
         return np.stack([self.mass, self.friction, self.restitution], axis=1)
 
-    def frames(self, start: int, stop: int) -> "Trajectory":
+    def frames(self, start: int, stop: int) -> Trajectory:
         """The same objects restricted to frames [start, stop)."""
         return dataclasses.replace(
             self,
@@ -161,22 +161,21 @@ def write_trajectories(path, data: TrajectoryFile, compression: str | None = "gz
 
     path = Path(path)
     _validate(data, str(path))
-    with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = FORMAT
-            f.attrs["format_version"] = FORMAT_VERSION
-            f.attrs["dt"] = float(data.dt)
-            f.attrs["gravity"] = np.asarray(data.gravity, np.float64)
-            for key, value in {**as_strings(stamp()), **data.attrs}.items():
-                f.attrs[key] = value
-            meshes = f.create_group("meshes")
-            for name, mesh in data.meshes.items():
-                group = meshes.create_group(name)
-                _checked_dataset(group, "vertices", np.asarray(mesh.vertices, np.float32))
-                _checked_dataset(group, "faces", np.asarray(mesh.faces, np.int32))
-            trajectories = f.create_group("trajectories")
-            for key, trajectory in data.trajectories.items():
-                _write_one(trajectories.create_group(str(key)), trajectory, compression)
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["dt"] = float(data.dt)
+        f.attrs["gravity"] = np.asarray(data.gravity, np.float64)
+        for key, value in {**as_strings(stamp()), **data.attrs}.items():
+            f.attrs[key] = value
+        meshes = f.create_group("meshes")
+        for name, mesh in data.meshes.items():
+            group = meshes.create_group(name)
+            _checked_dataset(group, "vertices", np.asarray(mesh.vertices, np.float32))
+            _checked_dataset(group, "faces", np.asarray(mesh.faces, np.int32))
+        trajectories = f.create_group("trajectories")
+        for key, trajectory in data.trajectories.items():
+            _write_one(trajectories.create_group(str(key)), trajectory, compression)
     return path
 
 

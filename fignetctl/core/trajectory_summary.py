@@ -156,8 +156,8 @@ def _object_rows(data: TrajectoryFile, trajectory: Trajectory, speeds: np.ndarra
                 "mass": float(trajectory.mass[index]),
                 "friction": float(trajectory.friction[index]),
                 "restitution": float(trajectory.restitution[index]),
-                "vertices": int(len(mesh.vertices)),
-                "faces": int(len(mesh.faces)),
+                "vertices": len(mesh.vertices),
+                "faces": len(mesh.faces),
                 "max_speed": float(speeds[:, index].max()),
                 "final_speed": float(speeds[-1, index]),
             }

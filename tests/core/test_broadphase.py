@@ -222,7 +222,7 @@ def groups_of(triangles, face_object, object_static, static_index, pose_keys):
     groups = []
     for obj in range(len(object_static)):
         faces = np.flatnonzero(face_object == obj)
-        build = lambda faces=faces: FaceGroup.from_triangles(faces, triangles[faces])  # noqa: E731
+        build = lambda faces=faces: FaceGroup.from_triangles(faces, triangles[faces])
         if object_static[obj]:
             groups.append(static_index.group(obj, pose_keys[obj], build))
         else:

@@ -157,7 +157,7 @@ def test_bent_pixels_are_exactly_those_whose_rays_meet_a_box(field):
     origins, directions = camera.rays()
     t = np.linspace(2.0, 4.5, 1001)
     points = origins[:, None] + t[None, :, None] * directions[:, None]
-    in_box = lambda p: ((p >= VOLUME.lower) & (p <= VOLUME.upper)).all(-1)  # noqa: E731
+    in_box = lambda p: ((p >= VOLUME.lower) & (p <= VOLUME.upper)).all(-1)
     rest = motion.inverse(0, points.reshape(-1, 3)).reshape(points.shape)
     expected = (in_box(points) | in_box(rest)).any(-1)
     disagree = frame.bent.reshape(-1) != expected

@@ -133,7 +133,7 @@ class SimulatorConfig:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
-    def from_json(cls, text: str) -> "SimulatorConfig":
+    def from_json(cls, text: str) -> SimulatorConfig:
         values = json.loads(text)
         graph = {
             "max_vertex_offset": None,

@@ -11,14 +11,14 @@ from fignetctl.core.nerf.io import FORMAT, FORMAT_VERSION, load_nerf, read_nerf_
 from fignetctl.core.nerf.model import NerfModel, Rendering
 
 __all__ = [
-    "PRESETS",
-    "NerfConfig",
-    "preset_config",
     "FORMAT",
     "FORMAT_VERSION",
-    "load_nerf",
-    "read_nerf_payload",
-    "save_nerf",
+    "PRESETS",
+    "NerfConfig",
     "NerfModel",
     "Rendering",
+    "load_nerf",
+    "preset_config",
+    "read_nerf_payload",
+    "save_nerf",
 ]

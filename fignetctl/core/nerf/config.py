@@ -98,7 +98,7 @@ class NerfConfig:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
-    def from_json(cls, text: str) -> "NerfConfig":
+    def from_json(cls, text: str) -> NerfConfig:
         values = json.loads(text)
         values["upsample_steps"] = tuple(values.get("upsample_steps", ()))
         known = {f.name for f in dataclasses.fields(cls)}

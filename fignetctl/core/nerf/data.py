@@ -77,5 +77,5 @@ def training_rays(views: Views, indices, device="cpu"):
         origins.append(o.reshape(-1, 3))
         directions.append(d.reshape(-1, 3))
         colours.append(views.images[i].reshape(-1, 3))
-    as_tensor = lambda parts: torch.as_tensor(np.concatenate(parts), dtype=torch.float32, device=device)  # noqa: E731
+    as_tensor = lambda parts: torch.as_tensor(np.concatenate(parts), dtype=torch.float32, device=device)
     return as_tensor(origins), as_tensor(directions), as_tensor(colours)

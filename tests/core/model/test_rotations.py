@@ -142,3 +142,12 @@ def test_one_rotation_is_the_network_as_it_is_and_more_change_the_answer():
         copy.rotations = wrong
         with pytest.raises(FignetError, match="from 1 to 64"):
             copy.network_acceleration(graph)
+
+
+def test_rollout_and_evaluate_bound_the_turns_as_the_model_does():
+    """The commands' --rotations declare their bound without importing torch; it must be the model's."""
+    from fignetctl.stages import evaluate, rollout
+
+    for stage in (rollout, evaluate):
+        field = {f.name: f for f in dataclasses.fields(stage.Settings)}["rotations"]
+        assert (field.metadata["low"], field.metadata["high"]) == (1, MAX_ROTATIONS)

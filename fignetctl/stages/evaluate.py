@@ -32,6 +32,12 @@ class Settings:
         low=1,
         high=64,
     )
+    max_faces: int | None = setting(
+        None,
+        "Decimate each moving object's mesh to at most this many faces; 0 keeps them whole: finer meshes cost time and gain accuracy (docs/accuracy-vs-time.md).  [default: the model file's, 256 for the bundled models]",
+        low=0,
+        high=10**6,
+    )
     device: str = setting(
         "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
     )
@@ -48,9 +54,7 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
     from fignetctl.core.trajectory import read_trajectories
 
     check(settings)
-    simulator = load_model(model, resolve_device(settings.device))
-    if settings.rotations is not None:
-        simulator.rotations = settings.rotations
+    simulator = load_model(model, resolve_device(settings.device), settings.rotations, settings.max_faces)
     trajectories = read_trajectories(data)
     total = len(list(trajectories.trajectories)[: settings.max_trajectories])
     with (progress or no_progress)(total=total, unit="trajectory", desc="evaluate") as bar:

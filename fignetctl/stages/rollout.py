@@ -34,6 +34,12 @@ class Settings:
         low=1,
         high=64,
     )
+    max_faces: int | None = setting(
+        None,
+        "Decimate each moving object's mesh to at most this many faces; 0 keeps them whole: finer meshes cost time and gain accuracy (docs/accuracy-vs-time.md).  [default: the model file's, 256 for the bundled models]",
+        low=0,
+        high=10**6,
+    )
     device: str = setting(
         "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
     )
@@ -74,9 +80,7 @@ def run(
 
     check(settings)
     sim_scale = parse_sim_scale(settings.sim_scale)
-    simulator = load_model(model, resolve_device(settings.device))
-    if settings.rotations is not None:
-        simulator.rotations = settings.rotations
+    simulator = load_model(model, resolve_device(settings.device), settings.rotations, settings.max_faces)
     data = read_trajectories(scene, None if settings.trajectory is None else [settings.trajectory])
     with (progress or no_progress)(total=settings.steps, unit="step", desc="rollout") as bar:
         try:

@@ -301,6 +301,41 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
     assert versus_stand_still["objects"] == 1 and versus_stand_still["trajectories"] == 1
 
 
+def test_max_faces_decimates_the_meshes_the_model_reads_and_is_recorded(trained, tmp_path):
+    """--max-faces changes the scene the network reads (the box's 12 faces cut to 6), not the
+    network; rollout's file and evaluate's json say what it was. Fewer than 4 faces is refused."""
+    _, data, model = trained
+    rolled = {}
+    for faces in (None, 6):
+        out = tmp_path / f"rollout-{faces}.h5"
+        args = [
+            "rollout",
+            str(data),
+            "--model",
+            str(model),
+            "--steps",
+            "3",
+            "--no-free-flight",
+            "-o",
+            str(out),
+        ]
+        result = CliRunner().invoke(cli, args + ([] if faces is None else ["--max-faces", str(faces)]))
+        assert result.exit_code == 0, result.output
+        written = read_trajectories(out)
+        assert json.loads(written.attrs["model_config"])["max_faces_per_object"] == (faces or 256)
+        rolled[faces] = written.trajectories["00000"].positions[2:, 1]
+    assert np.abs(rolled[None] - rolled[6]).max() > 1e-6
+    out = tmp_path / "metrics.json"
+    args = ["evaluate", str(data), "--model", str(model), "-n", "1", "--max-faces", "0", "-o", str(out)]
+    assert CliRunner().invoke(cli, args).exit_code == 0
+    assert json.loads(out.read_text())["max_faces"] is None  # whole meshes
+    for command in ("rollout", "evaluate"):
+        args = [command, str(data), "--model", str(model), "--max-faces", "3", "-o", str(tmp_path / "x")]
+        result = CliRunner().invoke(cli, args)
+        assert result.exit_code != 0 and "at least 4 faces" in result.output
+        assert "Traceback" not in result.output and not (tmp_path / "x").exists()
+
+
 def test_evaluate_ceilings_need_a_make_dataset_file(trained, tmp_path):
     _, data, model = trained  # written by the tests, not by make-dataset: no generator config
     out = tmp_path / "metrics.json"

@@ -15,18 +15,33 @@ from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.model.trained_ranges import outside_ranges
 from fignetctl.core.trajectory import TrajectoryFile
-from fignetctl.errors import FignetError
+from fignetctl.errors import FignetError, SettingError
 
 log = logging.getLogger(__name__)
+MIN_FACES = 4  # the fewest faces a mesh may be decimated to: a tetrahedron's
 
 
-def load_model(path=None, device="cpu"):
-    """A model file, a bundled checkpoint by name, or the bundled FIGNet* when `path` is None."""
+def load_model(path=None, device="cpu", rotations=None, max_faces=None):
+    """A model file, a bundled checkpoint by name, or the bundled FIGNet* when `path` is None.
+
+    rotations : the turns about gravity its network is averaged over, instead of the file's.
+    max_faces : each moving object's mesh decimated to at most this many faces instead of the
+        file's (0: whole meshes); the network is the same, the scenes it reads are finer or coarser.
+    """
     if path is None or path in BUNDLED:
         path = bundled_model_path(path or DEFAULT_BUNDLED)
         if not path.is_file():
             raise FignetError(f"no bundled model at {path}; pass a `model` file (from `fignetctl train`)")
-    return load_checkpoint(path, device=device)
+    simulator = load_checkpoint(path, device=device)
+    if rotations is not None:
+        simulator.rotations = rotations
+    if max_faces is not None:
+        if 0 < max_faces < MIN_FACES:
+            raise SettingError(
+                f"max_faces = {max_faces}: give 0 (whole meshes) or at least {MIN_FACES} faces"
+            )
+        simulator.config = dataclasses.replace(simulator.config, max_faces_per_object=max_faces or None)
+    return simulator
 
 
 def simulation_time_step(simulator, data, key, where) -> float:
@@ -215,6 +230,7 @@ def evaluate_trajectories(
         "keep_out": bool(keep_out),
         "ceilings": bool(ceilings),
         "rotations": simulator.rotations,
+        "max_faces": simulator.config.max_faces_per_object,
         **results,
     }
 

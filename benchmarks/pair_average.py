@@ -6,7 +6,7 @@ averaged in weight space as well as in their answers:
 
 - `soup`: one FIGNet whose weights are (1 − w) × FIGNet's + w × FIGNet*'s, the FIGNet*'s node
   updates widened with zero columns for the surface-edge messages (`surface_edges_grafted`),
-  its surface-edge encoder and edge updates FIGNet's own; written with -o and evaluated there;
+  its surface-edge encoder and edge updates FIGNet's own, written to --model-out and evaluated;
 - `ensemble`: both networks run on every step's graph (FIGNet*'s without the surface edges),
   their accelerations averaged.
 

@@ -21,7 +21,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' scenes
 
 import tests.stability.test_learned_rollouts as cases
-from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.bench.options import add_rotations_option
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.apply import load_model, rollout_trajectory
 from fignetctl.core.model.rollout import RolloutError
@@ -110,8 +110,7 @@ def main():
     logging.basicConfig(
         level=logging.ERROR
     )  # the paper's table is outside the model's: rollout warns on every scene
-    model = load_model(args.model)
-    apply_rotations(model, args.rotations)
+    model = load_model(args.model, rotations=args.rotations)
     result = {"model": args.model or "bundled fignet-star-movi-b", "rotations": model.rotations}
     with tempfile.TemporaryDirectory() as folder:
         for name, paper in (("movi_b_materials", False), ("paper_fignet_star_table", True)):

@@ -18,9 +18,9 @@ import argparse
 
 import h5py
 
-from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.bench.options import add_rotations_option
 from fignetctl.core.atomic import write_json
-from fignetctl.core.model.checkpoint import load_checkpoint
+from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.learnability import (
     fraction_unexplained,
     one_step_examples,
@@ -44,13 +44,12 @@ def main() -> None:
     )
     parser.add_argument("-o", "--output", default=None, help="json to write")
     args = parser.parse_args()
-    simulator = load_checkpoint(args.model)
-    rotations = apply_rotations(simulator, args.rotations)
+    simulator = load_model(args.model, rotations=args.rotations)
     results = {
         "model": args.model,
         "trajectories": args.trajectories,
         "frames": args.frames,
-        "rotations": rotations,
+        "rotations": simulator.rotations,
         "files": {},
     }
     for path in args.data:

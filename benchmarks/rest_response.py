@@ -35,9 +35,9 @@ import json
 
 import numpy as np
 
-from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.bench.options import add_rotations_option
 from fignetctl.core.atomic import write_json
-from fignetctl.core.model.checkpoint import load_checkpoint
+from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.rollout import guards_for, rollout
 from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
@@ -188,8 +188,7 @@ def main():
     add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
-    simulator = load_checkpoint(args.model)
-    apply_rotations(simulator, args.rotations)
+    simulator = load_model(args.model, rotations=args.rotations)
     data = read_trajectories(args.data)
     physics = None
     if args.physics:

@@ -26,7 +26,7 @@ import json
 import numpy as np
 import trimesh
 
-from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.bench.options import add_rotations_option
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.apply import load_model, rollout_trajectory
 from fignetctl.core.scene_building import ACTIVE, Properties, build_scene, drop_history
@@ -74,8 +74,7 @@ def main():
     add_rotations_option(parser)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
-    simulator = load_model(args.model)
-    apply_rotations(simulator, args.rotations)
+    simulator = load_model(args.model, rotations=args.rotations)
     rows = []
     for gap, subdivisions, mass in itertools.product(args.gaps, args.subdivisions, args.masses):
         scene = resting_box_scene(args.size, gap, subdivisions, mass)

@@ -6,8 +6,8 @@ import argparse
 
 
 def add_rotations_option(parser: argparse.ArgumentParser) -> None:
-    """`--rotations K`: average the network over K turns about gravity; left out, the model
-    file's own (`apply_rotations`). A K outside 1–MAX_ROTATIONS is a usage error."""
+    """`--rotations K`: average the network over K turns about gravity (pass it to `load_model`);
+    left out, the model file's own. A K outside 1–MAX_ROTATIONS is a usage error."""
     parser.add_argument(
         "--rotations",
         type=_turns,
@@ -15,13 +15,6 @@ def add_rotations_option(parser: argparse.ArgumentParser) -> None:
         metavar="K",
         help="average the network over this many turns about gravity (default: the model file's)",
     )
-
-
-def apply_rotations(simulator, rotations: int | None) -> int:
-    """Give `simulator` the `--rotations` asked for, if any; the turns it will run with."""
-    if rotations is not None:
-        simulator.rotations = rotations
-    return simulator.rotations
 
 
 def _turns(text: str) -> int:

@@ -1,11 +1,11 @@
 """The benchmarks' shared --rotations option."""
 
 import argparse
-import types
 
 import pytest
 
-from fignetctl.bench.options import add_rotations_option, apply_rotations
+from fignetctl.bench.options import add_rotations_option
+from fignetctl.core.model.apply import load_model
 from fignetctl.core.model.simulator import MAX_ROTATIONS
 
 
@@ -16,10 +16,9 @@ def _parser():
 
 
 def test_left_out_the_model_file_s_turns_stay():
-    model = types.SimpleNamespace(rotations=4)
-    assert apply_rotations(model, _parser().parse_args([]).rotations) == 4
-    assert apply_rotations(model, _parser().parse_args(["--rotations", "2"]).rotations) == 2
-    assert model.rotations == 2
+    """The bundled model records four turns; the option overrides them only when given."""
+    assert load_model(rotations=_parser().parse_args([]).rotations).rotations == 4
+    assert load_model(rotations=_parser().parse_args(["--rotations", "2"]).rotations).rotations == 2
 
 
 @pytest.mark.parametrize("wrong", ["0", str(MAX_ROTATIONS + 1), "2.5", "four"])

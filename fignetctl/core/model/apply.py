@@ -12,13 +12,12 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
-from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, scene_from_trajectory
+from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, MIN_FACES, scene_from_trajectory
 from fignetctl.core.model.trained_ranges import outside_ranges
 from fignetctl.core.trajectory import TrajectoryFile
 from fignetctl.errors import FignetError, SettingError
 
 log = logging.getLogger(__name__)
-MIN_FACES = 4  # the fewest faces a mesh may be decimated to: a tetrahedron's
 
 
 def load_model(path=None, device="cpu", rotations=None, max_faces=None):

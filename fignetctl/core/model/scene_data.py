@@ -57,6 +57,7 @@ class Scene:
 
 
 DECIMATIONS = ("closest", "quadric")
+MIN_FACES = 4  # the fewest faces a mesh may be decimated to: a tetrahedron's
 """How `decimated_mesh` decimates (`SimulatorConfig.decimation`)."""
 
 

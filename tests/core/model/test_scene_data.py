@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from fignetctl.core.model.scene_data import decimated_mesh, scene_from_trajectory, subdivided_mesh
+from fignetctl.core.model.scene_data import MIN_FACES, decimated_mesh, scene_from_trajectory, subdivided_mesh
 from fignetctl.core.model.scene_graph import build_scene_graph
 from fignetctl.core.model.simulator import SimulatorConfig
 from tests.conftest import box_drop_file
@@ -82,6 +82,14 @@ def thin_walled_shapes(tmp_path_factory):
 
     cache = tmp_path_factory.mktemp("shapes")
     return {a.name: a for a in shapes.load_shapes("movi-b", names=["mug", "gear", "sphere"], cache_dir=cache)}
+
+
+def test_train_refuses_to_decimate_below_what_rollout_and_evaluate_accept():
+    """train's --max-faces declares its bound without importing torch; it must be the decimation's."""
+    from fignetctl.stages import train
+
+    field = {f.name: f for f in dataclasses.fields(train.Settings)}["max_faces"]
+    assert field.metadata["low"] == MIN_FACES
 
 
 def test_closest_decimation_keeps_where_thin_walled_shapes_reach(thin_walled_shapes):

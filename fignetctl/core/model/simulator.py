@@ -86,7 +86,7 @@ class SimulatorConfig:
     graph: GraphConfig = GraphConfig()
     """Collision radius and FIGNet (surface edges) or FIGNet* (none)."""
     max_faces_per_object: int | None = 256
-    """Dynamic objects' meshes are decimated (quadric error) to at most this many faces; None
+    """Dynamic objects' meshes are decimated (`decimation`) to at most this many faces; None
     keeps them. Static meshes are kept whole (scene_data.py)."""
     decimation: str = "closest"
     """How (scene_data.decimated_mesh): 'closest', quadric decimation unless it moves the

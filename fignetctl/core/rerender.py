@@ -294,8 +294,8 @@ class Rerenderer:
             warp = make_warp(self.motion, t, self.volume, self.mode, self.device)
             box = bending_box(self.model, self.motion, t, self.volume)
             out = render_rays(self.model, origins[bent], directions[bent], warp, box)
-            for key in images:
-                images[key][bent] = out[key]
+            for key, image in images.items():
+                image[bent] = out[key]
         shape = lambda a, *rest: a.reshape(height, width, *rest)
         return Frame(
             shape(images["rgb"], 3),

@@ -175,7 +175,7 @@ def component_at(mask, v, u):
     """The 8-connected component of `mask` holding pixel (v, u) (empty if it is not set)."""
     import cv2
 
-    count, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     if not mask[v, u]:
         return np.zeros_like(mask, bool)
     return labels == labels[v, u]

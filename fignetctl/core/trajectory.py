@@ -362,7 +362,7 @@ def _read_one(group, where: str) -> Trajectory:
     values = {field: _read_dataset(group, field, where) for field in required[1:]}
     velocities = {field: _read_dataset(group, field, where) for field in VELOCITY_FIELDS if field in group}
     known = {*required, *VELOCITY_FIELDS}
-    extras = {k: _read_dataset(group, k, where) for k in group.keys() if k not in known}
+    extras = {k: _read_dataset(group, k, where) for k in group if k not in known}
     return Trajectory(mesh_names=names, extras=extras, **values, **velocities)
 
 

@@ -96,7 +96,7 @@ def pick_frames(
             best = PickedFrame(index, score, frame)
     picks.append(_write_frame(best, folder))
     kept = drop_blurred(picks, blur_ratio, neighbours)
-    for pick in set(p.name for p in picks) - set(p.name for p in kept):
+    for pick in {p.name for p in picks} - {p.name for p in kept}:
         (folder / pick).unlink()
     log.info(
         "picked %d frames from %s (every %d; %d blurred windows dropped)",

@@ -189,7 +189,7 @@ def test_other_readers_on_damaged_and_foreign_files(tmp_path, name):
         except FignetError as error:
             assert "\n" not in str(error)
     for other, (_, make_other) in readers.items():
-        if other != name and not (name == "box.obj"):
+        if other != name and name != "box.obj":
             _refuses_clearly(reader, make_other(tmp_path / f"foreign-{other}"))
 
 

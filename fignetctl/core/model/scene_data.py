@@ -57,8 +57,10 @@ class Scene:
 
 
 DECIMATIONS = ("closest", "quadric")
-MIN_FACES = 4  # the fewest faces a mesh may be decimated to: a tetrahedron's
 """How `decimated_mesh` decimates (`SimulatorConfig.decimation`)."""
+MIN_FACES = 4
+"""The fewest faces a moving mesh may be decimated to (a tetrahedron's): `train`, `rollout` and
+`evaluate` refuse fewer."""
 
 
 DEVIATION_TOLERANCE = 0.01

@@ -34,6 +34,52 @@ def setting(default, help: str, *, low=None, high=None, low_open=False, choices=
     return dataclasses.field(default=default, metadata={**bounds, "metavar": metavar})
 
 
+def device_setting():
+    """The `device` field of every stage that runs torch."""
+    return setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
+
+
+def sleep_setting(default: bool):
+    """`rollout`'s and `evaluate`'s sleeping guard (on by default in `rollout`, off in `evaluate`)."""
+    return setting(default, "Stop simulating objects at rest until something comes near (docs/simulator.md).")
+
+
+def free_flight_setting(default: bool):
+    """`rollout`'s and `evaluate`'s free-flight guard."""
+    return setting(
+        default,
+        "Move objects that touch nothing in exact free flight, not by the network (docs/simulator.md).",
+    )
+
+
+def keep_out_setting(default: bool):
+    """`rollout`'s and `evaluate`'s keep-out guard."""
+    return setting(
+        default,
+        "Move an object that passed into static geometry back out after each step (docs/simulator.md).",
+    )
+
+
+def rotations_setting():
+    """How many turns about gravity `rollout` and `evaluate` average the network over."""
+    return setting(
+        None,
+        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).  [default: the model file's, 1 unless it records more]",
+        low=1,
+        high=64,
+    )
+
+
+def max_faces_setting():
+    """The decimation of moving objects' meshes in `rollout` and `evaluate`."""
+    return setting(
+        None,
+        "Decimate each moving object's mesh to at most this many faces; 0 keeps them whole: finer meshes cost time and gain accuracy (docs/accuracy-vs-time.md).  [default: the model file's, 256 for the bundled models]",
+        low=0,
+        high=10**6,
+    )
+
+
 def check(settings) -> None:
     """Refuse a Settings whose values lie outside their declared bounds (Python callers get the
     command line's checks; a tuple's numbers each, and its length where the annotation fixes

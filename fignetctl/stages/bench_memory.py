@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from fignetctl.errors import SettingError
-from fignetctl.stages import check, no_progress, resolve_device, setting, write_summary
+from fignetctl.stages import check, device_setting, no_progress, resolve_device, setting, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,9 +32,7 @@ class Settings:
         1, "Torch CPU threads while measuring; 0 keeps torch's default (all cores).", low=0, high=1024
     )
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    device: str = device_setting()
 
 
 def model_problem(settings: Settings, model_paths) -> str | None:

@@ -4,21 +4,26 @@ from __future__ import annotations
 
 import dataclasses
 
-from fignetctl.stages import check, no_progress, resolve_device, setting
+from fignetctl.stages import (
+    check,
+    device_setting,
+    free_flight_setting,
+    keep_out_setting,
+    max_faces_setting,
+    no_progress,
+    resolve_device,
+    rotations_setting,
+    setting,
+    sleep_setting,
+)
 
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
     max_trajectories: int | None = setting(None, "Evaluate only the first N trajectories.", low=1, high=10**7)
-    sleep: bool = setting(
-        False, "Stop simulating objects at rest until something comes near (docs/simulator.md)."
-    )
-    free_flight: bool = setting(
-        False, "Move objects that touch nothing in exact free flight, not by the network (docs/simulator.md)."
-    )
-    keep_out: bool = setting(
-        False, "Move an object that passed into static geometry back out after each step (docs/simulator.md)."
-    )
+    sleep: bool = sleep_setting(False)
+    free_flight: bool = free_flight_setting(False)
+    keep_out: bool = keep_out_setting(False)
     with_guards: bool = setting(
         False,
         "Also evaluate the model as `rollout` runs it (free flight, keep-out, sleeping): model_with_guards.",
@@ -26,21 +31,9 @@ class Settings:
     ceilings: bool = setting(
         False, "Also evaluate PyBullet restarted every frame from a model's inputs (make-dataset DATA only)."
     )
-    rotations: int | None = setting(
-        None,
-        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).  [default: the model file's, 1 unless it records more]",
-        low=1,
-        high=64,
-    )
-    max_faces: int | None = setting(
-        None,
-        "Decimate each moving object's mesh to at most this many faces; 0 keeps them whole: finer meshes cost time and gain accuracy (docs/accuracy-vs-time.md).  [default: the model file's, 256 for the bundled models]",
-        low=0,
-        high=10**6,
-    )
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    rotations: int | None = rotations_setting()
+    max_faces: int | None = max_faces_setting()
+    device: str = device_setting()
 
 
 def run(data, output=None, settings: Settings = Settings(), model=None, progress=None) -> dict:

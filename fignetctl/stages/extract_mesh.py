@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from fignetctl.errors import FignetError, FormatError, SettingError
-from fignetctl.stages import DEVICES, check, resolve_device, setting, write_summary
+from fignetctl.stages import check, device_setting, resolve_device, setting, write_summary
 
 OUTPUTS = ("object.obj", "environment.obj", "volume.npz", "masks")
 """The files written into the output folder (with masks/)."""
@@ -62,7 +62,7 @@ class Settings:
         low=0,
         low_open=True,
     )
-    device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
+    device: str = device_setting()
 
 
 def run(

@@ -7,7 +7,15 @@ from pathlib import Path
 
 from fignetctl.core.rerun_log import DEFAULT_VIEWER
 from fignetctl.errors import SettingError
-from fignetctl.stages import DEVICES, check, no_progress, resolve_device, setting, to_stderr, write_summary
+from fignetctl.stages import (
+    check,
+    device_setting,
+    no_progress,
+    resolve_device,
+    setting,
+    to_stderr,
+    write_summary,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,7 +89,7 @@ class Settings:
     )
     resume: bool = setting(False, "Continue the run saved in --output where it stopped.")
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
-    device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
+    device: str = device_setting()
     rerun_connect: str | None = setting(
         None,
         "Stream loss and PSNR per step, then the held-out renders, to the rerun viewer at ADDR while "

@@ -6,7 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from fignetctl.errors import SettingError
-from fignetctl.stages import DEVICES, check, resolve_device, setting
+from fignetctl.stages import check, device_setting, resolve_device, setting
 
 MAX_RENDER_SIDE = 4096  # pixels: as render-views' largest image
 
@@ -17,7 +17,7 @@ class Settings:
     scale: float | None = setting(
         None, "Image scale against cameras.npz.  [default: the trained size]", low=0, low_open=True
     )
-    device: str = setting("auto", "Torch device; 'auto' uses CUDA when available.", choices=DEVICES)
+    device: str = device_setting()
 
 
 def run(nerf, cameras, output, settings: Settings = Settings()) -> dict:

@@ -6,7 +6,7 @@ import dataclasses
 from pathlib import Path
 
 from fignetctl.errors import FignetError, SettingError
-from fignetctl.stages import check, resolve_device, setting, write_summary
+from fignetctl.stages import check, device_setting, resolve_device, setting, write_summary
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,9 +44,7 @@ class Settings:
         None, "Video frame rate.  [default: real time, 1 / (dt * every)]", low=0.01, high=1000
     )
     trace: bool = setting(False, "Draw the object's path (its projected centre over time).")
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    device: str = device_setting()
 
 
 def default_frames_dir(video: Path) -> Path:

@@ -6,7 +6,20 @@ import dataclasses
 import math
 
 from fignetctl.errors import FignetError, SettingError
-from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr, write_summary
+from fignetctl.stages import (
+    check,
+    device_setting,
+    free_flight_setting,
+    keep_out_setting,
+    max_faces_setting,
+    no_progress,
+    resolve_device,
+    rotations_setting,
+    setting,
+    sleep_setting,
+    to_stderr,
+    write_summary,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,30 +32,12 @@ class Settings:
         low=1e-3,
         high=1e3,
     )
-    sleep: bool = setting(
-        True, "Stop simulating objects at rest until something comes near (docs/simulator.md)."
-    )
-    free_flight: bool = setting(
-        True, "Move objects that touch nothing in exact free flight, not by the network (docs/simulator.md)."
-    )
-    keep_out: bool = setting(
-        True, "Move an object that passed into static geometry back out after each step (docs/simulator.md)."
-    )
-    rotations: int | None = setting(
-        None,
-        "Average the network over this many equal turns of the scene about gravity: exactly equivariant to them, at that many times the network's work (docs/simulator.md).  [default: the model file's, 1 unless it records more]",
-        low=1,
-        high=64,
-    )
-    max_faces: int | None = setting(
-        None,
-        "Decimate each moving object's mesh to at most this many faces; 0 keeps them whole: finer meshes cost time and gain accuracy (docs/accuracy-vs-time.md).  [default: the model file's, 256 for the bundled models]",
-        low=0,
-        high=10**6,
-    )
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    sleep: bool = sleep_setting(True)
+    free_flight: bool = free_flight_setting(True)
+    keep_out: bool = keep_out_setting(True)
+    rotations: int | None = rotations_setting()
+    max_faces: int | None = max_faces_setting()
+    device: str = device_setting()
 
 
 def parse_sim_scale(value) -> float | str:

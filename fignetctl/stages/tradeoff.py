@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fignetctl.bench.tradeoff import KNOBS
 from fignetctl.errors import SettingError
-from fignetctl.stages import check, no_progress, resolve_device, setting
+from fignetctl.stages import check, device_setting, no_progress, resolve_device, setting
 
 KNOB_CHOICES = (*KNOBS, "all")
 OUTPUT_EXTENSIONS = ("json", "csv", "png")
@@ -34,9 +34,7 @@ class Settings:
     threads: int = setting(1, "Torch CPU threads while measuring; 0 keeps torch's default.", low=0, high=1024)
     quick: bool = setting(False, "Two settings per knob, one trajectory, two steps: a smoke run in seconds.")
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    device: str = device_setting()
 
 
 def selected(knobs) -> list[str]:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fignetctl.core.rerun_log import DEFAULT_VIEWER
 from fignetctl.errors import SettingError
-from fignetctl.stages import check, no_progress, resolve_device, setting, to_stderr
+from fignetctl.stages import check, device_setting, no_progress, resolve_device, setting, to_stderr
 
 TIME_LIMIT_EXIT = 75
 """`train`'s exit code when --time-limit stopped it (sysexits' EX_TEMPFAIL: not finished, run again)."""
@@ -177,9 +177,7 @@ class Settings:
         metavar="MINUTES",
     )
     seed: int = setting(0, "Random seed, 0 to 2**32 - 1.", low=0, high=2**32 - 1)
-    device: str = setting(
-        "auto", "Torch device; 'auto' uses CUDA when available.", choices=("cpu", "cuda", "auto")
-    )
+    device: str = device_setting()
     rerun_connect: str | None = setting(
         None,
         "Stream the loss per step to the rerun viewer at ADDR while training runs (a viewer started "

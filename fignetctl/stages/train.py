@@ -84,6 +84,11 @@ class Settings:
         "Face-face edges also carry their closest points' relative velocity and its approach rate "
         "(docs/simulator.md).",
     )
+    inertia: bool = setting(
+        False,
+        "Object nodes also carry their inertia tensor per unit mass in the world frame; from an "
+        "--init-from model without it, its input weights start at zero (docs/simulator.md).",
+    )
     free_motion: bool = setting(
         False,
         "The network predicts what contact changes of each object's free motion (gravity, constant "
@@ -206,6 +211,7 @@ def configs(settings: Settings, device: str = "cpu"):
         settings.contact_velocity,
         settings.free_motion,
         settings.message_passing_steps,
+        settings.inertia,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

@@ -10,7 +10,8 @@ Node features (12): velocity x_t − x_{t−1} (3; for a velocity state, each dy
 instantaneous velocity (v + ω × (x − c)) times dt), kinematic displacement x_{t+1} − x_t of static
 nodes (3, zero for dynamic ones), mass (kg, or its logarithm with `GraphConfig.log_mass`),
 friction, restitution, the static bit, and a node-type
-one-hot (mesh, object).
+one-hot (mesh, object). With `GraphConfig.inertia`, 9 more: an object node's inertia tensor per
+unit mass about its centre in the world frame, R G Rᵀ (row-major; zeros on mesh nodes).
 
 Edge sets (all features relative, so translating the whole scene changes nothing):
 - ``mesh_to_object`` / ``object_to_mesh`` (8): sender − receiver now (3) and its norm, sender −
@@ -70,6 +71,8 @@ NODE_FEATURE_SIZE = 12
 RELATIVE_EDGE_FEATURE_SIZE = 8
 FACE_FACE_FEATURE_SIZE = 34
 CONTACT_VELOCITY_FEATURE_SIZE = 4
+INERTIA_FEATURE_SIZE = 9
+CLOSED_TOLERANCE = 1e-3
 # Relative resolution of the keys that order a triangle's vertices canonically.
 ORDER_KEY_RESOLUTION = 1e-6
 
@@ -114,12 +117,18 @@ class GraphConfig:
     the step and its component along the line between them, the quantity an impact turns on,
     which the network would otherwise have to compose from six vertex nodes. False: the
     geometry alone (model files before this field)."""
+    inertia: bool = False
+    """True: object nodes also carry their inertia tensor per unit mass about the object node,
+    in the world frame (I / m = R G R^T, 9 columns, m²; zeros on mesh nodes), which sets how an
+    impulse changes the object's spin and which the network would otherwise have to assemble
+    from its vertices' offsets. False: none (model files before this field)."""
 
 
 # Where each feature block holds world-frame 3-vectors (the first column of each): a rotation
 # of the whole scene rotates these and leaves every other column (norms, rest-shape vectors,
 # materials, flags) as it is.
 NODE_VECTOR_COLUMNS = (0, 3)  # velocity, kinematic displacement
+NODE_TENSOR_COLUMNS = (NODE_FEATURE_SIZE,)  # the inertia tensor (GraphConfig.inertia), row-major
 EDGE_VECTOR_COLUMNS = {
     MESH_TO_OBJECT: (0,),  # sender − receiver now; the rest-shape offset is in the object frame
     OBJECT_TO_MESH: (0,),
@@ -143,15 +152,22 @@ def rotated_graph(graph: MultiGraph, rotation: torch.Tensor) -> MultiGraph:
         )
         for name, edge_set in graph.edge_sets.items()
     }
-    return MultiGraph(_rotated_columns(graph.node_features, NODE_VECTOR_COLUMNS, rotation), edge_sets)
+    nodes = _rotated_columns(graph.node_features, NODE_VECTOR_COLUMNS, rotation, NODE_TENSOR_COLUMNS)
+    return MultiGraph(nodes, edge_sets)
 
 
-def _rotated_columns(features, starts, rotation):
+def _rotated_columns(features, starts, rotation, tensor_starts=()):
+    """features with the 3-vectors that begin at `starts` rotated, and the row-major 3×3 tensors
+    that begin at `tensor_starts` turned into R T R^T (each where the features are that wide)."""
     rotated = features.clone()
     rotation = rotation.to(features)
     for start in starts:
         if start + 3 <= features.shape[1]:
             rotated[:, start : start + 3] = features[:, start : start + 3] @ rotation.T
+    for start in tensor_starts:
+        if start + 9 <= features.shape[1]:
+            tensors = features[:, start : start + 9].reshape(-1, 3, 3)
+            rotated[:, start : start + 9] = (rotation @ tensors @ rotation.T).reshape(-1, 9)
     return rotated
 
 
@@ -164,7 +180,8 @@ def graph_signature_for(config: GraphConfig) -> GraphSignature:
     }
     if config.surface_edges:
         sizes[NODE_NODE] = RELATIVE_EDGE_FEATURE_SIZE
-    return GraphSignature(NODE_FEATURE_SIZE, sizes, (FACE_FACE,))
+    node_size = NODE_FEATURE_SIZE + INERTIA_FEATURE_SIZE * config.inertia
+    return GraphSignature(node_size, sizes, (FACE_FACE,))
 
 
 @dataclasses.dataclass
@@ -214,6 +231,17 @@ class SceneGeometry:
         reach = np.zeros(self.num_objects)
         np.maximum.at(reach, self.vertex_object, np.linalg.norm(self.rest_vertices, axis=1))
         return _read_only(reach)
+
+    @functools.cached_property
+    def inertia_per_mass(self) -> np.ndarray:
+        """(O, 3, 3) float64 each object's inertia tensor per unit mass about its centre, in its
+        object frame (`inertia_per_mass`; zeros for static objects)."""
+        tensors = np.zeros((self.num_objects, 3, 3))
+        for o in np.flatnonzero(~self.static):
+            rows = self.object_vertices[o]
+            faces = np.searchsorted(rows, self.faces[self.object_faces[o]])
+            tensors[o] = inertia_per_mass(self.rest_vertices[rows], faces)
+        return _read_only(tensors)
 
     @functools.cached_property
     def object_faces(self) -> list:
@@ -427,6 +455,9 @@ def build_scene_graph(geometry, positions, quaternions, config, velocities=None)
     if config.surface_edges:
         edge_sets[NODE_NODE] = node_node_edge_set(geometry, node_history[1], vertex_nodes)
     node_features = node_feature_rows(geometry, node_vertex, node_object, node_history, config.log_mass)
+    if config.inertia:
+        inertia = world_inertia_rows(geometry, node_vertex, node_object, quaternions[1])
+        node_features = np.concatenate([node_features, inertia], axis=1)
     graph = MultiGraph(torch.from_numpy(node_features), edge_sets)
     num_dynamic = len(geometry.dynamic_vertices)
     touching = np.zeros(len(geometry.static), bool)
@@ -595,6 +626,39 @@ def node_feature_rows(geometry, node_vertex, node_object, node_history, log_mass
         is_object_node[:, None],
     ]
     return np.concatenate(columns, axis=1).astype(np.float32)
+
+
+def world_inertia_rows(geometry, node_vertex, node_object, quaternions):
+    """(N, 9) float32: each object node's inertia per unit mass in the world frame, R G R^T with R
+    its rotation at t (quaternions (O, 4)); zeros on mesh nodes."""
+    rows = np.zeros((len(node_vertex), 9), np.float32)
+    objects = node_object[node_vertex < 0]
+    rotations = quat_to_matrix(np.asarray(quaternions, np.float64)[objects])
+    world = rotations @ geometry.inertia_per_mass[objects] @ np.swapaxes(rotations, 1, 2)
+    rows[node_vertex < 0] = world.reshape(-1, 9)
+    return rows
+
+
+def inertia_per_mass(vertices, faces) -> np.ndarray:
+    """(3, 3) the inertia tensor per unit mass (m²) about the origin of a solid of uniform
+    density bounded by the mesh: the signed tetrahedra from the origin to each face, whose
+    second moments sum to the solid's (C = Σ v/20 (a aᵀ + b bᵀ + c cᵀ + s sᵀ), s = a + b + c,
+    I = tr(C) 1 − C, divided by the volume Σ v; both change sign with the winding). Where the
+    mesh is not closed (its faces' area vectors do not sum to under CLOSED_TOLERANCE of their
+    lengths' sum) or encloses no volume, the vertices as equal point masses."""
+    vertices = np.asarray(vertices, np.float64)
+    corners = vertices[np.asarray(faces, np.int64)]
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    volumes = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    areas = np.cross(b - a, c - a)  # a closed surface's sum to zero: its volume is the same from any origin
+    closed = np.linalg.norm(areas.sum(axis=0)) <= CLOSED_TOLERANCE * np.linalg.norm(areas, axis=1).sum()
+    if closed and np.isfinite(volumes.sum()) and abs(volumes.sum()) > 0:  # either winding
+        s = a + b + c
+        outer = sum(np.einsum("fi,fj->fij", x, x) for x in (a, b, c, s))
+        second_moment = np.einsum("f,fij->ij", volumes / 20.0, outer) / volumes.sum()
+    else:
+        second_moment = vertices.T @ vertices / max(len(vertices), 1)
+    return np.trace(second_moment) * np.eye(3) - second_moment
 
 
 def relative_edge_features(sender_now, receiver_now, sender_rest, receiver_rest):

@@ -50,7 +50,6 @@ from fignetctl.core.model.network import EncodeProcessDecode, NetworkConfig
 from fignetctl.core.model.normalizer import Normalizer
 from fignetctl.core.model.scene_data import DECIMATIONS
 from fignetctl.core.model.scene_graph import (
-    NODE_FEATURE_SIZE,
     GraphConfig,
     build_scene_graph,
     graph_signature_for,
@@ -167,7 +166,7 @@ class LearnedSimulator(nn.Module):
         self.config = config
         signature = graph_signature_for(config.graph)
         self.network = EncodeProcessDecode(config.network, signature)
-        self.node_normalizer = Normalizer(NODE_FEATURE_SIZE, std_epsilon=STD_EPSILON)
+        self.node_normalizer = Normalizer(signature.node_feature_size, std_epsilon=STD_EPSILON)
         self.edge_normalizers = nn.ModuleDict(
             {
                 name: Normalizer(size, std_epsilon=STD_EPSILON)

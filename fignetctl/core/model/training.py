@@ -39,7 +39,13 @@ from fignetctl.core.model.graph import batch_graphs
 from fignetctl.core.model.network import silence
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
-from fignetctl.core.model.scene_graph import NODE_NODE, build_scene_graph, rigid_point_velocities
+from fignetctl.core.model.scene_graph import (
+    INERTIA_FEATURE_SIZE,
+    NODE_FEATURE_SIZE,
+    NODE_NODE,
+    build_scene_graph,
+    rigid_point_velocities,
+)
 from fignetctl.core.model.simulator import (
     LearnedSimulator,
     SimulatorConfig,
@@ -877,8 +883,9 @@ def make_trainer(
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
+        inertia_added = False
         if init_from is not None:
-            blocks = _load_weights(simulator, init_from)
+            blocks, inertia_added = _load_weights(simulator, init_from)
             if blocks < simulator.config.network.message_passing_steps:
                 training_config = dataclasses.replace(training_config, added_blocks_from=blocks)
         if training_config.added_blocks_learning_rate_scale != 1.0 and not training_config.added_blocks_from:
@@ -892,13 +899,15 @@ def make_trainer(
             "model learns from; make it again with `fignetctl make-dataset`"
         )
     scenes = SceneStore(data, simulator.config, TRAINING_STATIC_REACH, scene_cache)
+    if resume_from is None and inertia_added:
+        fill_inertia_statistics(simulator, scenes, training_config.seed)
     trainer = Trainer(scenes, simulator, training_config, device, data_hash, workers)
     if state is not None:
         trainer.load_state(state)
     return trainer
 
 
-def _load_weights(simulator, path) -> int:
+def _load_weights(simulator, path) -> tuple[int, bool]:
     """Copy a model file's weights and normalizer statistics into `simulator`, or a clear
     error when its network differs (another architecture or size) or it reads mass with the
     other feature (kg or log), or its face-face edges differ in `contact_velocity`, or it
@@ -906,7 +915,9 @@ def _load_weights(simulator, path) -> int:
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
     run starts from the source's predictions. So does a FIGNet run from a FIGNet* source, whose
-    surface edges' messages start shut out (`surface_edges_grafted`). Returns the source's processor blocks."""
+    surface edges' messages start shut out (`surface_edges_grafted`), and a run with `inertia` from
+    a source without it (`inertia_grafted`). Returns the source's processor blocks and whether
+    the inertia columns were added (their statistics are still to be set)."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -917,6 +928,8 @@ def _load_weights(simulator, path) -> int:
     if source.config.graph.contact_velocity != simulator.config.graph.contact_velocity:
         trained = "with" if source.config.graph.contact_velocity else "without"
         raise FignetError(f"{path}: it was trained {trained} `contact_velocity`; give this run the same")
+    if source.config.graph.inertia and not simulator.config.graph.inertia:
+        raise FignetError(f"{path}: it was trained with `inertia`; give this run the same")
     if source.config.free_motion != simulator.config.free_motion:
         trained = "with" if source.config.free_motion else "without"
         raise FignetError(f"{path}: it was trained {trained} `free_motion`; give this run the same")
@@ -926,6 +939,9 @@ def _load_weights(simulator, path) -> int:
     grown = own.message_passing_steps > blocks and deepened == own
     grafted = simulator.config.graph.surface_edges and not source.config.graph.surface_edges
     weights = surface_edges_grafted(source.state_dict(), simulator) if grafted else source.state_dict()
+    inertia_added = simulator.config.graph.inertia and not source.config.graph.inertia
+    if inertia_added:
+        weights = inertia_grafted(weights)
     try:
         missing, unexpected = simulator.load_state_dict(weights, strict=not (grown or grafted))
         new_blocks = tuple(f"network.processor.{k}." for k in range(blocks, own.message_passing_steps))
@@ -941,7 +957,7 @@ def _load_weights(simulator, path) -> int:
             f"{path}: its network differs from the one asked for (`model`, `size`, "
             f"`message_passing_steps`); give the same ones ({str(error).splitlines()[0]})"
         ) from None
-    return blocks
+    return blocks, inertia_added
 
 
 def surface_edges_grafted(weights: dict, simulator) -> dict:
@@ -964,6 +980,40 @@ def surface_edges_grafted(weights: dict, simulator) -> dict:
     return widened
 
 
+def inertia_grafted(weights: dict) -> dict:
+    """A model's `weights` widened to read the object nodes' inertia (GraphConfig.inertia): the
+    node encoder's first layer gets zero columns for the nine inputs, so the network predicts
+    what the source does and the columns, which get their gradients, let the inertia in; the
+    node normalizer's sums get zeros there, for `fill_inertia_statistics` to set."""
+    widened = dict(weights)
+    weight = weights["network.node_encoder.0.0.weight"]
+    widened["network.node_encoder.0.0.weight"] = torch.cat(
+        [weight, weight.new_zeros(weight.shape[0], INERTIA_FEATURE_SIZE)], dim=1
+    )
+    for key in ("node_normalizer.sum", "node_normalizer.sum_of_squares"):
+        widened[key] = torch.cat([weights[key], weights[key].new_zeros(INERTIA_FEATURE_SIZE)])
+    return widened
+
+
+def fill_inertia_statistics(simulator, scenes, seed: int, samples: int = 256) -> None:
+    """Set the node normalizer's sums for the inertia columns that `inertia_grafted` added, from
+    the graphs of `samples` random training frames, as if they had been accumulated with the
+    rest (the statistics count every node row the source has seen)."""
+    rng = np.random.default_rng(seed)
+    generator = torch.Generator().manual_seed(seed)
+    config = TrainingSettings(noise_translation_std=0.0, noise_rotation_std=0.0)
+    columns = []
+    for _ in range(samples):
+        scene = scenes[int(rng.integers(len(scenes)))]
+        frame = int(rng.integers(1, len(scene.positions) - 1))
+        scene_graph, _ = training_example(simulator.config, scene, frame, generator, config)
+        columns.append(scene_graph.graph.node_features[:, NODE_FEATURE_SIZE:].double())
+    rows = torch.cat(columns)
+    normalizer = simulator.node_normalizer
+    normalizer.sum[NODE_FEATURE_SIZE:] = normalizer.count * rows.mean(dim=0)
+    normalizer.sum_of_squares[NODE_FEATURE_SIZE:] = normalizer.count * (rows * rows).mean(dim=0)
+
+
 def simulator_config_for(
     architecture,
     size,
@@ -979,6 +1029,7 @@ def simulator_config_for(
     contact_velocity=False,
     free_motion=False,
     message_passing_steps=None,
+    inertia=False,
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset (with
     its processor blocks, unless `message_passing_steps` is given), the state."""
@@ -993,6 +1044,7 @@ def simulator_config_for(
         static_receivers=static_receivers,
         log_mass=log_mass,
         contact_velocity=contact_velocity,
+        inertia=inertia,
     )
     if collision_radius is not None:
         graph = dataclasses.replace(graph, collision_radius=collision_radius)

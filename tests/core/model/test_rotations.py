@@ -80,7 +80,7 @@ def test_turns_about_gravity_are_proper_rotations_that_keep_gravity_and_step_eve
 
 def test_a_turned_graph_is_the_graph_of_the_turned_scene():
     geometry, positions, quaternions = _stones_on_floor()
-    config = GraphConfig(0.3, surface_edges=True, contact_velocity=True)
+    config = GraphConfig(0.3, surface_edges=True, contact_velocity=True, inertia=True)
     matrix = rotations_about_gravity(7, GRAVITY)[3].double().numpy()
     built = build_scene_graph(geometry, positions, quaternions, config).graph
     turned_scene = build_scene_graph(geometry, *_turned(matrix, positions, quaternions), config).graph

@@ -711,3 +711,28 @@ def test_a_worker_ends_soon_after_the_process_it_watches(pidfd):
     finally:
         watched.kill()
         worker.kill()
+
+
+def test_a_run_with_inertia_from_a_model_without_it_starts_where_the_model_is(box_file, tmp_path):
+    plain = make_trainer(box_file, TINY, _config())
+    plain.run(tmp_path / "plain.pt")
+    with_inertia = dataclasses.replace(TINY, graph=GraphConfig(0.1, False, inertia=True))
+    grafted = make_trainer(box_file, with_inertia, _config(), init_from=tmp_path / "plain.pt")
+    weights, source = grafted.simulator.state_dict(), plain.simulator.state_dict()
+    first_layer = "network.node_encoder.0.0.weight"
+    torch.testing.assert_close(weights[first_layer][:, :12], source[first_layer], rtol=0, atol=0)
+    assert weights[first_layer].shape[1] == 21 and not weights[first_layer][:, 12:].any()
+    normalizer = grafted.simulator.node_normalizer
+    torch.testing.assert_close(normalizer.sum[:12], source["node_normalizer.sum"], rtol=0, atol=0)
+    # the added columns' statistics are those of the nodes' inertia: a box's I/m on object nodes
+    rows = grafted.batches[0]["graph"].node_features[:, 12:].double()
+    torch.testing.assert_close(normalizer.mean()[12:], rows.mean(0), rtol=0.05, atol=1e-4)
+    assert normalizer.std()[[12, 16, 20]].min() > 1e-3
+    fresh = make_trainer(box_file, TINY, _config(), init_from=tmp_path / "plain.pt")
+    grafted.simulator.train(), fresh.simulator.train()
+    # the same examples and predictions: the loss is the source's, and the columns open from there
+    assert grafted.train_step() == pytest.approx(fresh.train_step(), rel=1e-6)
+    assert grafted.simulator.network.node_encoder[0][0].weight[:, 12:].abs().max() > 0
+    grafted.run(tmp_path / "inertia.pt")
+    with pytest.raises(FignetError, match="trained with `inertia`"):  # not the other way round
+        make_trainer(box_file, TINY, _config(), init_from=tmp_path / "inertia.pt")

@@ -126,6 +126,29 @@ def test_train_feature_options_reach_the_model_file(trained, tmp_path, option, f
     assert "Traceback" not in result.output
 
 
+def test_train_inertia_grows_a_model_without_it_whose_run_rolls_out_and_is_not_shrunk_back(trained, tmp_path):
+    """--inertia is recorded; a model without it seeds a run with it (zero input columns), the
+    result rolls out, and a model with it cannot seed a run without it."""
+    from fignetctl.core.model.checkpoint import load_checkpoint
+
+    _, data, model = trained
+    out = tmp_path / "inertia.pt"
+    args = ["train", str(data), "-o", str(out), "--size", "tiny", "--steps", "2", "--init-from", str(model)]
+    result = CliRunner().invoke(cli, [*args, "--inertia"])
+    assert result.exit_code == 0, result.output
+    assert load_checkpoint(out).config.graph.inertia and not load_checkpoint(model).config.graph.inertia
+    rolled = tmp_path / "rolled.h5"
+    result = CliRunner().invoke(
+        cli, ["rollout", str(data), "--model", str(out), "--steps", "3", "-o", str(rolled)]
+    )
+    assert result.exit_code == 0, result.output
+    assert np.isfinite(read_trajectories(rolled).trajectories["00000"].positions).all()
+    args[-1] = str(out)
+    result = CliRunner().invoke(cli, [*args[:3], str(tmp_path / "shrunk.pt"), *args[4:]])
+    assert result.exit_code == 1 and "trained with --inertia; give this run the same" in result.output
+    assert "Traceback" not in result.output
+
+
 def test_train_free_motion_reaches_the_model_file_and_needs_the_velocity_state(trained, tmp_path):
     """--free-motion is recorded, a model without it cannot seed a run with it, and a two-frame
     model cannot have it (it carries no velocity to fly on)."""

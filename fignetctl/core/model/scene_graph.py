@@ -632,10 +632,11 @@ def world_inertia_rows(geometry, node_vertex, node_object, quaternions):
     """(N, 9) float32: each object node's inertia per unit mass in the world frame, R G R^T with R
     its rotation at t (quaternions (O, 4)); zeros on mesh nodes."""
     rows = np.zeros((len(node_vertex), 9), np.float32)
-    objects = node_object[node_vertex < 0]
+    is_object_node = node_vertex < 0
+    objects = node_object[is_object_node]
     rotations = quat_to_matrix(np.asarray(quaternions, np.float64)[objects])
     world = rotations @ geometry.inertia_per_mass[objects] @ np.swapaxes(rotations, 1, 2)
-    rows[node_vertex < 0] = world.reshape(-1, 9)
+    rows[is_object_node] = world.reshape(-1, 9)
     return rows
 
 
@@ -650,12 +651,13 @@ def inertia_per_mass(vertices, faces) -> np.ndarray:
     corners = vertices[np.asarray(faces, np.int64)]
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
     volumes = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0
+    volume = volumes.sum()
     areas = np.cross(b - a, c - a)  # a closed surface's sum to zero: its volume is the same from any origin
     closed = np.linalg.norm(areas.sum(axis=0)) <= CLOSED_TOLERANCE * np.linalg.norm(areas, axis=1).sum()
-    if closed and np.isfinite(volumes.sum()) and abs(volumes.sum()) > 0:  # either winding
+    if closed and np.isfinite(volume) and abs(volume) > 0:  # either winding
         s = a + b + c
         outer = sum(np.einsum("fi,fj->fij", x, x) for x in (a, b, c, s))
-        second_moment = np.einsum("f,fij->ij", volumes / 20.0, outer) / volumes.sum()
+        second_moment = np.einsum("f,fij->ij", volumes / 20.0, outer) / volume
     else:
         second_moment = vertices.T @ vertices / max(len(vertices), 1)
     return np.trace(second_moment) * np.eye(3) - second_moment

@@ -863,6 +863,7 @@ def make_trainer(
     data = read_trajectories(dataset_path)  # a clear error for a missing or damaged file, before hashing it
     check_trainable(data, dataset_path)
     data_hash = file_sha256(dataset_path)
+    inertia_added = False  # columns grafted onto an init_from model, whose statistics are still to be set
     if resume_from is not None:
         simulator, state = load_checkpoint(resume_from, with_training_state=True)
         if state is None:
@@ -883,7 +884,6 @@ def make_trainer(
         with torch.random.fork_rng():  # weights drawn from the run's seed, global state untouched
             torch.manual_seed(training_config.seed)
             simulator, state = LearnedSimulator(simulator_config), None
-        inertia_added = False
         if init_from is not None:
             blocks, inertia_added = _load_weights(simulator, init_from)
             if blocks < simulator.config.network.message_passing_steps:
@@ -899,7 +899,7 @@ def make_trainer(
             "model learns from; make it again with `fignetctl make-dataset`"
         )
     scenes = SceneStore(data, simulator.config, TRAINING_STATIC_REACH, scene_cache)
-    if resume_from is None and inertia_added:
+    if inertia_added:
         fill_inertia_statistics(simulator, scenes, training_config.seed)
     trainer = Trainer(scenes, simulator, training_config, device, data_hash, workers)
     if state is not None:

@@ -235,12 +235,12 @@ class SceneGeometry:
     @functools.cached_property
     def inertia_per_mass(self) -> np.ndarray:
         """(O, 3, 3) float64 each object's inertia tensor per unit mass about its centre, in its
-        object frame (`inertia_per_mass`; zeros for static objects)."""
+        object frame (`mesh_inertia_per_mass`; zeros for static objects)."""
         tensors = np.zeros((self.num_objects, 3, 3))
         for o in np.flatnonzero(~self.static):
             rows = self.object_vertices[o]
             faces = np.searchsorted(rows, self.faces[self.object_faces[o]])
-            tensors[o] = inertia_per_mass(self.rest_vertices[rows], faces)
+            tensors[o] = mesh_inertia_per_mass(self.rest_vertices[rows], faces)
         return _read_only(tensors)
 
     @functools.cached_property
@@ -640,7 +640,7 @@ def world_inertia_rows(geometry, node_vertex, node_object, quaternions):
     return rows
 
 
-def inertia_per_mass(vertices, faces) -> np.ndarray:
+def mesh_inertia_per_mass(vertices, faces) -> np.ndarray:
     """(3, 3) the inertia tensor per unit mass (m²) about the origin of a solid of uniform
     density bounded by the mesh: the signed tetrahedra from the origin to each face, whose
     second moments sum to the solid's (C = Σ v/20 (a aᵀ + b bᵀ + c cᵀ + s sᵀ), s = a + b + c,

@@ -10,7 +10,7 @@ from fignetctl.core.model.scene_graph import (
     build_scene_graph,
     face_face_features,
     graph_signature_for,
-    inertia_per_mass,
+    mesh_inertia_per_mass,
     scene_geometry,
     unique_undirected_edges,
 )
@@ -306,23 +306,23 @@ def test_surface_edges_are_each_mesh_edge_once_as_a_brute_force_count_finds_them
     assert unique_undirected_edges(np.zeros((0, 3), np.int64)).shape == (0, 2)
 
 
-def test_inertia_per_mass_is_a_solids_about_its_origin_and_of_the_vertices_where_it_encloses_nothing():
+def test_mesh_inertia_per_mass_is_a_solids_about_its_origin_and_of_the_vertices_where_it_encloses_nothing():
     box = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
     expected = np.diag([2.0**2 + 3.0**2, 1.0 + 3.0**2, 1.0 + 2.0**2]) / 12
-    np.testing.assert_allclose(inertia_per_mass(box.vertices, box.faces), expected, atol=1e-12)
+    np.testing.assert_allclose(mesh_inertia_per_mass(box.vertices, box.faces), expected, atol=1e-12)
     # about the origin, not the centroid: the parallel-axis theorem (|d|² 1 − d dᵀ per unit mass)
     shift = np.array([0.3, -0.2, 0.5])
-    shifted = inertia_per_mass(box.vertices + shift, box.faces)
+    shifted = mesh_inertia_per_mass(box.vertices + shift, box.faces)
     np.testing.assert_allclose(
         shifted, expected + shift @ shift * np.eye(3) - np.outer(shift, shift), atol=1e-12
     )
     # a turned solid's tensor turns with it, and its winding does not matter for a closed mesh
     matrix = quat_to_matrix(random_quaternions(np.random.default_rng(0), 1))[0]
-    turned = inertia_per_mass(box.vertices @ matrix.T, box.faces[:, ::-1])
+    turned = mesh_inertia_per_mass(box.vertices @ matrix.T, box.faces[:, ::-1])
     np.testing.assert_allclose(turned, matrix @ expected @ matrix.T, atol=1e-12)
     # one open triangle: its three corners as point masses
     corners = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
-    np.testing.assert_allclose(inertia_per_mass(corners, [[0, 1, 2]]), (np.eye(3) * 3 - np.eye(3)) / 3)
+    np.testing.assert_allclose(mesh_inertia_per_mass(corners, [[0, 1, 2]]), (np.eye(3) * 3 - np.eye(3)) / 3)
 
 
 def test_object_nodes_carry_their_inertia_in_the_world_frame_and_mesh_nodes_none():
@@ -338,4 +338,4 @@ def test_object_nodes_carry_their_inertia_in_the_world_frame_and_mesh_nodes_none
     rotation = quat_to_matrix(quaternions[1, 1])
     expected = rotation @ (np.eye(3) * 2 / 12) @ rotation.T  # a unit cube: (1 + 1) / 12 about every axis
     np.testing.assert_allclose(features[object_nodes][0, 12:].numpy().reshape(3, 3), expected, atol=1e-6)
-    np.testing.assert_allclose(geometry.inertia_per_mass[1], inertia_per_mass(box.vertices, box.faces))
+    np.testing.assert_allclose(geometry.inertia_per_mass[1], mesh_inertia_per_mass(box.vertices, box.faces))

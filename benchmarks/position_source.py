@@ -52,13 +52,15 @@ def position_step(acceleration, source):
 
 @contextlib.contextmanager
 def positions_from(source):
-    """Within the block, LearnedSimulator steps (simulator.integrate) place vertices from `source`."""
+    """Within the block, LearnedSimulator steps (simulator.integrate) place vertices from
+    `source`, applied to the whole step (a free-motion model's computed part included)."""
     original = simulator_module.integrate
 
     def integrate(acceleration, vertices_previous, vertices_now, free_motion=None):
-        if np.shape(acceleration)[1] == 6:
-            acceleration = position_step(acceleration, source)
-        return original(acceleration, vertices_previous, vertices_now, free_motion)
+        if np.shape(acceleration)[1] != 6:
+            return original(acceleration, vertices_previous, vertices_now, free_motion)
+        total = acceleration if free_motion is None else np.asarray(acceleration) + free_motion
+        return original(position_step(total, source), vertices_previous, vertices_now)
 
     simulator_module.integrate = integrate
     try:

@@ -98,3 +98,13 @@ def test_the_trapezoid_rule_leaves_nothing_of_a_parabola_and_half_a_mid_frame_bo
         a_x, residual = position_source.trapezoid_residuals(np.concatenate([start, end]), np.concatenate(u))
         np.testing.assert_allclose(a_x[0, 0, 2], v * (1 - fraction) - v * fraction + v)
         np.testing.assert_allclose(residual[0, 0, 2], left * v)
+
+
+def test_a_free_motion_model_s_whole_step_follows_the_rule():
+    """The rule applies to the network's answer plus the computed free motion, not to the answer alone."""
+    previous, now = np.zeros((2, 3)), np.full((2, 3), 0.1)
+    answer, free_motion = np.full((2, 6), 0.02), np.tile([0.0, 0.0, -0.005, 0.0, 0.0, -0.01], (2, 1))
+    with position_source.positions_from("velocity"):
+        next_vertices, next_velocity = simulator_module.integrate(answer, previous, now, free_motion)
+    np.testing.assert_allclose(next_vertices, now + ((now - previous) + next_velocity) / 2)
+    np.testing.assert_allclose(next_velocity, (now - previous) + answer[:, 3:] + free_motion[:, 3:])

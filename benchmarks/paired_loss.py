@@ -10,9 +10,9 @@ the mean paired difference (second − first) with its standard error.
 
 import argparse
 import csv
-import json
 import math
-from pathlib import Path
+
+from fignetctl.core.atomic import write_json
 
 
 def losses(path) -> dict[int, float]:
@@ -62,7 +62,7 @@ def main():
         )
     if args.output:
         result = {"first": args.first, "second": args.second, "window": args.window, "windows": rows}
-        Path(args.output).write_text(json.dumps(result, indent=1) + "\n")
+        write_json(args.output, result)
 
 
 if __name__ == "__main__":

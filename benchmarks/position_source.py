@@ -83,6 +83,7 @@ def recorded_fvu(path, count):
     """{fvu, vertex_steps}: the trapezoid rule's share of the recorded a_x's variance left
     unexplained, over every dynamic vertex and step of the first `count` trajectories."""
     from fignetctl.core.model.scene_data import scene_from_trajectory
+    from fignetctl.core.model.scene_graph import rigid_point_velocities
     from fignetctl.core.model.simulator import SimulatorConfig
     from fignetctl.core.trajectory import read_trajectories
 
@@ -97,8 +98,12 @@ def recorded_fvu(path, count):
         vertices = np.stack(
             [scene.geometry.world_vertices(p, q, dynamic) for p, q in zip(scene.positions, scene.quaternions)]
         )
-        offsets = vertices - scene.positions[:, owner]
-        velocities = scene.velocities[:, owner] + np.cross(scene.angular_velocities[:, owner], offsets)
+        velocities = np.stack(
+            [
+                rigid_point_velocities(x, owner, c, v, w)
+                for x, c, v, w in zip(vertices, scene.positions, scene.velocities, scene.angular_velocities)
+            ]
+        )
         a_x, residual = trapezoid_residuals(vertices, velocities * data.dt)
         targets.append(a_x.reshape(-1, 3))
         residuals.append(residual.reshape(-1, 3))

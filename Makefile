@@ -86,7 +86,7 @@ FORCE:
 .PRECIOUS: $(DATA)/%-movi-b-base.pt $(DATA)/%-movi-b-tuned.pt $(DATA)/%-movi-b.pt $(DATA)/%-movi-b-velocities.pt
 
 # The first velocity-state models (the bundled ones come from `make checkpoints` below;
-# docs/simulator.md has the figures of both): 4000 trajectories, frame t and instantaneous
+# docs/training-record.md has the figures of both): 4000 trajectories, frame t and instantaneous
 # velocities in, static nodes that do not aggregate, MSE, graphs built by a worker process, bf16
 # where the CPU has it. One torch thread: the worker takes the other core. Resumable (re-run the
 # target).
@@ -105,7 +105,7 @@ velocity-checkpoints: $(DATA)/fignet-star-movi-b-velocities.pt $(DATA)/fignet-mo
 
 # The 8000-step velocity-state FIGNet* on the held-out set, beside its guards, the baselines and
 # the PyBullet ceilings; 120 steps of the network alone on 10 trajectories, for how deep objects
-# go into the floor (docs/simulator.md).
+# go into the floor (docs/training-record.md).
 evaluate-velocity-checkpoint: $(DATA)/movi-b-test.h5 $(DATA)/fignet-star-movi-b-velocities.pt
 	$(BIN)/fignetctl evaluate $< --model $(DATA)/fignet-star-movi-b-velocities.pt --with-guards --ceilings -o docs/results/fignet-star-velocities-movi-b-test.json --overwrite
 	$(BIN)/python benchmarks/long_rollout.py --model $(DATA)/fignet-star-movi-b-velocities.pt --data $< -n 10 --steps 120 \

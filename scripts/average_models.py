@@ -1,6 +1,6 @@
 """`python scripts/average_models.py MODEL MODEL [MODEL ...] -o DESTINATION`: one model file
 whose weights are the mean of those of runs continued from one model with other seeds (a model
-soup). Measure it beside each run: docs/simulator.md has what it did for the velocity state."""
+soup). Measure it beside each run: docs/training-record.md has what it did for the velocity state."""
 
 import argparse
 import sys

@@ -3,7 +3,7 @@ K + N − 1 (in file order) of a trajectory file, as a smaller file of their own
 that takes only so much data along (a lent GPU machine takes 64 MiB with the code). The frame
 arrays are stored byte-shuffled at gzip level 9 with their checksums, the few numbers per object
 plainly: about 53 KB per movi-b trajectory against 64 KB in make-dataset's files, so 1000 fit
-beside the code (docs/simulator.md, "The continuations", stage 13). The copy is read back with
+beside the code (docs/training-record.md, "The continuations", stage 13). The copy is read back with
 fignetctl's reader before it replaces DESTINATION."""
 
 import argparse

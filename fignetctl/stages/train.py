@@ -28,7 +28,7 @@ class Settings:
         None,
         "Processor blocks, in place of the --size's (tiny 2, small 5, paper 10). With --init-from a "
         "model of fewer blocks, its blocks come first and the added ones start as identity "
-        "(docs/simulator.md).",
+        "(docs/training-record.md).",
         low=1,
         high=64,
     )
@@ -82,12 +82,12 @@ class Settings:
     contact_velocity: bool = setting(
         False,
         "Face-face edges also carry their closest points' relative velocity and its approach rate "
-        "(docs/simulator.md).",
+        "(docs/training-record.md).",
     )
     inertia: bool = setting(
         False,
         "Object nodes also carry their inertia tensor per unit mass in the world frame; from an "
-        "--init-from model without it, its input weights start at zero (docs/simulator.md).",
+        "--init-from model without it, its input weights start at zero (docs/training-record.md).",
     )
     free_motion: bool = setting(
         False,
@@ -107,7 +107,7 @@ class Settings:
     frame_sampling: str = setting(
         "uniform",
         "Which frames the examples are: uniform, or motion (impact frames drawn more often, their "
-        "loss weighted down to keep the uniform expectation; docs/simulator.md).",
+        "loss weighted down to keep the uniform expectation; docs/training-record.md).",
         choices=("uniform", "motion"),
     )
     loss: str = setting(
@@ -118,14 +118,14 @@ class Settings:
     calm_weight: float = setting(
         0.0,
         "Extra loss weight of the vertices the recording has in free fall or at rest (their loss "
-        "weighs 1 + this): small errors there add up over a rollout (docs/simulator.md).",
+        "weighs 1 + this): small errors there add up over a rollout (docs/training-record.md).",
         low=0,
         high=1e6,
     )
     rest_weight: float = setting(
         0.0,
         "Extra loss weight of the vertices the recording keeps at rest (or steady), on top of "
-        "--calm-weight: a resting object given a small velocity must stop (docs/simulator.md).",
+        "--calm-weight: a resting object given a small velocity must stop (docs/training-record.md).",
         low=0,
         high=1e6,
     )

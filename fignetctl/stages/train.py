@@ -32,6 +32,14 @@ class Settings:
         low=1,
         high=64,
     )
+    mlp_hidden_size: int | None = setting(
+        None,
+        "Width of every MLP hidden layer, in place of the --size's (tiny 32, small 64, paper 128). With "
+        "--init-from a model of narrower ones, its units keep their weights and the added units start "
+        "with zero outgoing weights, so the run starts from its predictions (docs/training-record.md).",
+        low=1,
+        high=4096,
+    )
     added_blocks_learning_rate_scale: float = setting(
         1.0,
         "With --init-from a model of fewer blocks than --message-passing-steps: the added blocks' "
@@ -212,6 +220,7 @@ def configs(settings: Settings, device: str = "cpu"):
         settings.free_motion,
         settings.message_passing_steps,
         settings.inertia,
+        settings.mlp_hidden_size,
     )
     training_config = TrainingSettings(
         steps=settings.steps,

@@ -297,6 +297,35 @@ def silence(block: GraphNetBlock) -> None:
             nn.init.zeros_(module.layer_norm.bias)
 
 
+def mlp_widened(source: dict[str, torch.Tensor], target: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A network's weights `source` placed in the state dict `target` of the same network with
+    wider MLP hidden layers (`mlp_hidden_size`), so that it computes exactly what `source` does.
+
+    Each weight (o, i) of the source fills the top-left corner of the target's (O, I): the
+    source's units keep their weights and read nothing of the added inputs (zeros), and the
+    added units keep the target's random weights. An added hidden unit therefore computes
+    something from the start, and its outgoing weights, zero, get gradients at once (unlike a
+    silenced block, whose weights get none while its scale is zero). Widths other than the
+    hidden ones (latents, inputs, outputs) are the same on both sides; names only one side has
+    are left as they are, for `load_state_dict` to judge.
+    """
+    weights = {}
+    for name, given in source.items():
+        value = target.get(name)
+        if value is None or given.shape == value.shape:
+            weights[name] = given
+            continue
+        if given.dim() != value.dim() or any(g > v for g, v in zip(given.shape, value.shape, strict=True)):
+            raise ValueError(f"{name}: {tuple(given.shape)} does not fit in {tuple(value.shape)}")
+        grown = value.clone()
+        rows = given.shape[0]
+        if given.dim() == 2:
+            grown[:rows] = 0
+        grown[tuple(slice(0, n) for n in given.shape)] = given
+        weights[name] = grown
+    return weights
+
+
 class EncodeProcessDecode(nn.Module):
     """Normalized graph -> per-node output (N, config.output_size).
 

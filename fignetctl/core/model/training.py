@@ -36,7 +36,7 @@ from fignetctl.core.atomic import process_running
 from fignetctl.core.model import distributed
 from fignetctl.core.model.checkpoint import load_checkpoint, save_checkpoint
 from fignetctl.core.model.graph import batch_graphs
-from fignetctl.core.model.network import silence
+from fignetctl.core.model.network import mlp_widened, silence
 from fignetctl.core.model.noise import apply_rigid_pose_noise_to_poses, sample_rigid_pose_noise
 from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, SceneStore, frame_counts, property_inputs
 from fignetctl.core.model.scene_graph import (
@@ -914,7 +914,8 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
     decodes the whole correction where this run decodes the change from free motion, or the
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
-    run starts from the source's predictions. So does a FIGNet run from a FIGNet* source, whose
+    run starts from the source's predictions. So does a source of narrower MLP hidden layers,
+    whose units keep their weights beside the added ones (`network.mlp_widened`). So does a FIGNet run from a FIGNet* source, whose
     surface edges' messages start shut out (`surface_edges_grafted`), and a run with `inertia` from
     a source without it (`inertia_grafted`). Returns the source's processor blocks and whether
     the inertia columns were added (their statistics are still to be set)."""
@@ -935,13 +936,18 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
         raise FignetError(f"{path}: it was trained {trained} `free_motion`; give this run the same")
     own, given = simulator.config.network, source.config.network
     blocks = given.message_passing_steps
-    deepened = dataclasses.replace(given, message_passing_steps=own.message_passing_steps)
-    grown = own.message_passing_steps > blocks and deepened == own
+    grown_to_own = dataclasses.replace(
+        given, message_passing_steps=own.message_passing_steps, mlp_hidden_size=own.mlp_hidden_size
+    )
+    fits = grown_to_own == own and own.mlp_hidden_size >= given.mlp_hidden_size
+    grown = own.message_passing_steps > blocks and fits
     grafted = simulator.config.graph.surface_edges and not source.config.graph.surface_edges
     weights = surface_edges_grafted(source.state_dict(), simulator) if grafted else source.state_dict()
     inertia_added = simulator.config.graph.inertia and not source.config.graph.inertia
     if inertia_added:
         weights = inertia_grafted(weights)
+    if own.mlp_hidden_size > given.mlp_hidden_size and fits:
+        weights = mlp_widened(weights, simulator.state_dict())
     try:
         missing, unexpected = simulator.load_state_dict(weights, strict=not (grown or grafted))
         new_blocks = tuple(f"network.processor.{k}." for k in range(blocks, own.message_passing_steps))
@@ -955,7 +961,7 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
     except RuntimeError as error:
         raise FignetError(
             f"{path}: its network differs from the one asked for (`model`, `size`, "
-            f"`message_passing_steps`); give the same ones ({str(error).splitlines()[0]})"
+            f"`message_passing_steps`, `mlp_hidden_size`); give the same ones ({str(error).splitlines()[0]})"
         ) from None
     return blocks, inertia_added
 
@@ -1030,9 +1036,11 @@ def simulator_config_for(
     free_motion=False,
     message_passing_steps=None,
     inertia=False,
+    mlp_hidden_size=None,
 ) -> SimulatorConfig:
     """The SimulatorConfig of a command line: 'fignet-star' or 'fignet', a network preset (with
-    its processor blocks, unless `message_passing_steps` is given), the state."""
+    its processor blocks and hidden width, unless `message_passing_steps` or `mlp_hidden_size`
+    is given), the state."""
     from fignetctl.core.model.network import PRESETS
     from fignetctl.core.model.scene_graph import GraphConfig
     from fignetctl.core.model.simulator import output_size_for
@@ -1051,6 +1059,8 @@ def simulator_config_for(
     network = dataclasses.replace(PRESETS[size], output_size=output_size_for(state))
     if message_passing_steps is not None:
         network = dataclasses.replace(network, message_passing_steps=message_passing_steps)
+    if mlp_hidden_size is not None:
+        network = dataclasses.replace(network, mlp_hidden_size=mlp_hidden_size)
     return SimulatorConfig(
         network=network,
         graph=graph,

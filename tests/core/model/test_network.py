@@ -19,6 +19,7 @@ from fignetctl.core.model.network import (
     EncodeProcessDecode,
     Incidence,
     concatenated_forward,
+    mlp_widened,
     sum_messages_into_receivers,
 )
 
@@ -267,3 +268,17 @@ def test_tiny_model_overfits_a_fixed_random_target():
         optimizer.step()
         losses.append(loss.item())
     assert losses[-1] < losses[0] / 10
+
+
+@pytest.mark.parametrize("hidden_layers", [1, 2, 3])
+def test_a_network_widened_computes_what_it_did_and_then_learns_with_its_added_units(hidden_layers):
+    graph = random_graph(num_nodes=30, num_edges=ALL_SETS, seed=3)
+    narrow = tiny_model_for(graph, seed=1, mlp_hidden_layers=hidden_layers)
+    wide = tiny_model_for(graph, seed=2, mlp_hidden_layers=hidden_layers, mlp_hidden_size=45)
+    wide.load_state_dict(mlp_widened(narrow.state_dict(), wide.state_dict()))
+    torch.testing.assert_close(wide(graph), narrow(graph), rtol=1e-5, atol=1e-6)
+    wide(graph).square().sum().backward()
+    added_columns = wide.decoder[-1].weight.grad[:, TINY.mlp_hidden_size :]
+    assert added_columns.abs().max() > 0  # zero weights out of the added units, with gradients
+    with pytest.raises(ValueError, match="does not fit"):
+        mlp_widened(wide.state_dict(), narrow.state_dict())

@@ -490,6 +490,37 @@ def test_init_from_a_model_of_fewer_blocks_adds_blocks_that_start_as_identity(bo
             make_trainer(box_file, config, _config(), init_from=tmp_path / "first.pt")
 
 
+def test_init_from_a_model_of_narrower_hidden_layers_starts_from_its_predictions(box_file, tmp_path):
+    first = make_trainer(box_file, TINY, _config())
+    first.run(tmp_path / "first.pt")
+    hidden, wide = TINY.network.mlp_hidden_size, 2 * TINY.network.mlp_hidden_size + 3  # no other width
+    wider = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, mlp_hidden_size=wide))
+    same, grown = (
+        make_trainer(box_file, config, _config(), init_from=tmp_path / "first.pt") for config in (TINY, wider)
+    )
+    source, weights = first.simulator.state_dict(), grown.simulator.state_dict()
+    last_layers = 0
+    for name, value in source.items():  # the source's units keep their weights, in the corner
+        grown_value = weights[name]
+        torch.testing.assert_close(
+            grown_value[tuple(slice(0, n) for n in value.shape)], value, rtol=0, atol=0
+        )
+        if value.dim() == 2 and value.shape[1] == hidden:  # they read nothing of the added units
+            assert not grown_value[: value.shape[0], hidden:].any()
+            last_layers += value.shape[0] != hidden
+        if value.dim() == 2 and grown_value.shape[0] == wide:  # which have random weights
+            assert grown_value[hidden:].abs().min() > 0
+    assert last_layers > 0
+    batch = same.batches[0]
+    same.simulator.train(), grown.simulator.train()
+    assert grown.train_step(batch) == pytest.approx(same.train_step(batch), rel=1e-5)
+    decoder_output = grown.simulator.network.decoder[-1].weight
+    assert decoder_output[:, hidden:].abs().max() > 0  # the added units are let in from there
+    grown.run(tmp_path / "wider.pt")
+    with pytest.raises(FignetError, match="network differs"):  # not the other way round
+        make_trainer(box_file, TINY, _config(), init_from=tmp_path / "wider.pt")
+
+
 def test_the_added_blocks_learn_at_their_own_rate_and_keep_it_on_resume(box_file, tmp_path):
     make_trainer(box_file, TINY, _config()).run(tmp_path / "first.pt")
     deeper = dataclasses.replace(TINY, network=dataclasses.replace(TINY.network, message_passing_steps=4))

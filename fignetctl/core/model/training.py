@@ -915,10 +915,11 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
     other way round (`free_motion`). A source of the same widths but fewer processor blocks
     fills the first ones; the blocks after them start as identity (`network.silence`), so the
     run starts from the source's predictions. So does a source of narrower MLP hidden layers,
-    whose units keep their weights beside the added ones (`network.mlp_widened`). So does a FIGNet run from a FIGNet* source, whose
-    surface edges' messages start shut out (`surface_edges_grafted`), and a run with `inertia` from
-    a source without it (`inertia_grafted`). Returns the source's processor blocks and whether
-    the inertia columns were added (their statistics are still to be set)."""
+    whose units keep their weights beside the added ones (`network.mlp_widened`), a FIGNet run
+    from a FIGNet* source, whose surface edges' messages start shut out (`surface_edges_grafted`),
+    and a run with `inertia` from a source without it (`inertia_grafted`). Returns the source's
+    processor blocks and whether the inertia columns were added (their statistics are still to be
+    set)."""
     source = load_checkpoint(path)
     if source.config.graph.log_mass != simulator.config.graph.log_mass:
         feature = "log" if source.config.graph.log_mass else "kg"
@@ -961,7 +962,8 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
     except RuntimeError as error:
         raise FignetError(
             f"{path}: its network differs from the one asked for (`model`, `size`, "
-            f"`message_passing_steps`, `mlp_hidden_size`); give the same ones ({str(error).splitlines()[0]})"
+            f"`message_passing_steps`, `mlp_hidden_size`); give the same ones "
+            f"({str(error).splitlines()[0]})"
         ) from None
     return blocks, inertia_added
 

@@ -960,10 +960,11 @@ def _load_weights(simulator, path) -> tuple[int, bool]:
         for block in simulator.network.processor[blocks:]:  # after the source's blocks: identity
             silence(block)
     except RuntimeError as error:
+        lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+        detail = lines[1] if lines[0].endswith(":") and len(lines) > 1 else lines[0]  # torch's heading
         raise FignetError(
             f"{path}: its network differs from the one asked for (`model`, `size`, "
-            f"`message_passing_steps`, `mlp_hidden_size`); give the same ones "
-            f"({str(error).splitlines()[0]})"
+            f"`message_passing_steps`, `mlp_hidden_size`); give the same ones ({detail})"
         ) from None
     return blocks, inertia_added
 

@@ -165,22 +165,28 @@ def average_checkpoints(sources, destination) -> Path:
     if len(sources) < 2:
         raise SettingError("give two or more model files to average")
     payloads = [read_checkpoint_payload(source) for source in sources]
-    first, shared = payloads[0], ("simulator_config", "trained_properties")
-    for source, payload in zip(sources[1:], payloads[1:]):
-        for field in shared:
-            if payload.get(field) != first.get(field):
+    # the weights fit the settings and are finite; settings compare as read, so a field that a
+    # file older than it lacks counts as its default
+    simulators = [_simulator_from_payload(payload, source) for source, payload in zip(sources, payloads)]
+    first, reference = payloads[0], simulators[0]
+    for source, simulator in zip(sources[1:], simulators[1:]):
+        for field, same in (
+            ("simulator_config", simulator.config == reference.config),
+            ("trained_properties", simulator.trained_properties == reference.trained_properties),
+        ):
+            if not same:
                 raise FormatError(
                     f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one dataset"
                 )
-    for source, payload in zip(sources, payloads):  # the weights fit the settings and are finite
-        _simulator_from_payload(payload, source)
     weights = {}
     for name, tensor in first["model"].items():
         stacked = torch.stack([payload["model"][name] for payload in payloads])
         mean = stacked.mean(0) if tensor.is_floating_point() else stacked.double().mean(0).round()
         weights[name] = mean.to(tensor.dtype)
     history = [payload.get("training_state") or payload.get("provenance") or {} for payload in payloads]
-    fields = {key: first[key] for key in shared if key in first}
+    fields = {"simulator_config": reference.config.to_json()}
+    if "trained_properties" in first:
+        fields["trained_properties"] = first["trained_properties"]
     payload = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,

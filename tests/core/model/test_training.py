@@ -333,6 +333,25 @@ def test_a_model_averaged_with_itself_predicts_as_it_does(box_file, tmp_path):
     np.testing.assert_allclose(steps[1][0], steps[0][0], rtol=0, atol=1e-6)
 
 
+def test_averaging_reads_a_setting_an_older_file_lacks_as_its_default(box_file, tmp_path):
+    import json
+
+    from fignetctl.core.containers import save_torch_payload
+    from fignetctl.core.model.checkpoint import average_checkpoints, read_checkpoint_payload
+
+    make_trainer(box_file, TINY, _config(steps=2)).run(tmp_path / "new.pt")
+    payload = read_checkpoint_payload(tmp_path / "new.pt")
+    settings = json.loads(payload["simulator_config"])
+    assert settings["graph"].pop("inertia") is False
+    save_torch_payload(tmp_path / "old.pt", {**payload, "simulator_config": json.dumps(settings)})
+    average_checkpoints([tmp_path / "old.pt", tmp_path / "new.pt"], tmp_path / "soup.pt")
+    assert load_checkpoint(tmp_path / "soup.pt").config == load_checkpoint(tmp_path / "new.pt").config
+    assert (
+        json.loads(read_checkpoint_payload(tmp_path / "soup.pt")["simulator_config"])["graph"]["inertia"]
+        is False
+    )
+
+
 def test_averaging_refuses_one_file_and_models_of_other_settings(box_file, tmp_path):
     from fignetctl.core.model.checkpoint import average_checkpoints
     from fignetctl.errors import SettingError

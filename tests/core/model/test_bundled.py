@@ -1,6 +1,7 @@
 """The checkpoints shipped inside the package."""
 
 import dataclasses
+import json
 
 import numpy as np
 
@@ -88,21 +89,32 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
         check=True,
     ).stdout
     trained = {}  # run file -> its settings
+    finished = set()  # the stages' models so far
     for line in printed.splitlines():
         words = shlex.split(line)
-        if "train" in words and words[words.index("train") - 1].endswith("fignetctl"):
+        if words[1].endswith("average_models.py"):
+            averaged = {Path(run).with_name(Path(run).name.replace(".run.pt", ".pt")) for run in words[2:-2]}
+            finished = (finished - averaged) | {Path(words[-1])}
+        elif "train" in words and words[words.index("train") - 1].endswith("fignetctl"):
             arguments = words[words.index("train") + 1 :]
             values = train.make_context("train", arguments).params
-            finished = {re.sub(r"(-seed-\d+)?\.run\.pt$", ".pt", str(run)) for run in trained}
-            assert values["init_from"] in finished if trained else values["init_from"] is None
+            assert (Path(values["init_from"]) in finished) if trained else values["init_from"] is None, line
             trained[Path(values["output"])] = options.settings_from(stage.Settings, values)
+            finished.add(Path(re.sub(r"\.run\.pt$", ".pt", values["output"])))
     assert len(trained) == 17  # fifteen stages, two of them two seeds each
     for name, final in exported.items():
         settings = trained[final.with_name(final.stem + ".run.pt")]
         config, training = stage.configs(settings)
         bundled = load_model(name).config
         assert dataclasses.replace(config, dt=bundled.dt, gravity=bundled.gravity) == bundled, name
-        assert training.rest_weight == 100 and training.frame_sampling == "uniform"
+        recorded = json.loads(
+            read_checkpoint_payload(bundled_model_path(name))["provenance"]["training_config"]
+        )
+        # the last stage's own run, in the settings its trainer recorded (an older one recorded fewer)
+        # ("auto" precision is recorded as what it resolved to)
+        made = {k: v for k, v in dataclasses.asdict(training).items() if k in recorded and k != "precision"}
+        assert {"steps", "batch_size", "seed", "rest_weight", "frame_sampling"} <= made.keys()
+        assert made == {key: recorded[key] for key in made}, name
 
 
 def test_make_resumes_a_model_file_newer_than_its_data():

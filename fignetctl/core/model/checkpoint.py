@@ -156,14 +156,19 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
     return save_torch_payload(destination, payload)
 
 
-def average_checkpoints(sources, destination) -> Path:
+def average_checkpoints(sources, destination, properties_from: int | None = None) -> Path:
     """Average the weights of model files into one, without training state: a "model soup"
     (Wortsman et al. 2022) of runs continued from one model with other seeds, which stay close
     enough in weight space for their mean to be a model too. The normalizer statistics are sums
     and counts, so their mean normalizes with the statistics pooled over the runs. The files
-    must share their settings and properties; the result records each one's provenance."""
+    must share their settings and properties; the result records each one's provenance.
+    `properties_from` = k: the files' trained properties may differ (runs on one dataset whose
+    properties two versions of the trainer measured differently), and the result takes the
+    k-th file's (0-based)."""
     if len(sources) < 2:
         raise SettingError("give two or more model files to average")
+    if properties_from is not None and not 0 <= properties_from < len(sources):
+        raise SettingError(f"properties_from must be 0 to {len(sources) - 1}, not {properties_from}")
     payloads = [read_checkpoint_payload(source) for source in sources]
     # the weights fit the settings and are finite; settings compare as read, so a field that a
     # file older than it lacks counts as its default
@@ -172,11 +177,21 @@ def average_checkpoints(sources, destination) -> Path:
     for source, simulator in zip(sources[1:], simulators[1:]):
         for field, same in (
             ("simulator_config", simulator.config == reference.config),
-            ("trained_properties", simulator.trained_properties == reference.trained_properties),
+            (
+                "trained_properties",
+                properties_from is not None or simulator.trained_properties == reference.trained_properties,
+            ),
         ):
             if not same:
+                hint = (
+                    " (or, where two versions of the trainer measured one dataset's properties"
+                    " differently, take one file's: average_models.py --properties-from K)"
+                    if field == "trained_properties"
+                    else ""
+                )
                 raise FormatError(
-                    f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one dataset"
+                    f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one"
+                    f" dataset{hint}"
                 )
     weights = {}
     for name, tensor in first["model"].items():
@@ -185,8 +200,9 @@ def average_checkpoints(sources, destination) -> Path:
         weights[name] = mean.to(tensor.dtype)
     history = [payload.get("training_state") or payload.get("provenance") or {} for payload in payloads]
     fields = {"simulator_config": reference.config.to_json()}
-    if "trained_properties" in first:
-        fields["trained_properties"] = first["trained_properties"]
+    chosen = payloads[properties_from or 0]
+    if "trained_properties" in chosen:
+        fields["trained_properties"] = chosen["trained_properties"]
     payload = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,

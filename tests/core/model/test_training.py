@@ -366,6 +366,30 @@ def test_averaging_refuses_one_file_and_models_of_other_settings(box_file, tmp_p
     assert not (tmp_path / "soup.pt").exists()
 
 
+def test_averaging_takes_the_chosen_files_properties_only_when_told(box_file, tmp_path):
+    import json
+
+    from fignetctl.core.containers import save_torch_payload
+    from fignetctl.core.model.checkpoint import average_checkpoints, read_checkpoint_payload
+    from fignetctl.errors import SettingError
+
+    make_trainer(box_file, TINY, _config(steps=2)).run(tmp_path / "a.pt")
+    payload = read_checkpoint_payload(tmp_path / "a.pt")
+    properties = json.loads(payload["trained_properties"])
+    properties["dynamic"]["largest_side"] = [side * 1.01 for side in properties["dynamic"]["largest_side"]]
+    save_torch_payload(tmp_path / "b.pt", {**payload, "trained_properties": json.dumps(properties)})
+    pair = [tmp_path / "a.pt", tmp_path / "b.pt"]
+    with pytest.raises(FormatError, match="trained_properties differ"):
+        average_checkpoints(pair, tmp_path / "soup.pt")
+    with pytest.raises(SettingError, match="properties_from must be 0 to 1, not 2"):
+        average_checkpoints(pair, tmp_path / "soup.pt", properties_from=2)
+    assert not (tmp_path / "soup.pt").exists()
+    for chosen in (0, 1):
+        average_checkpoints(pair, tmp_path / f"soup-{chosen}.pt", properties_from=chosen)
+        recorded = read_checkpoint_payload(tmp_path / f"soup-{chosen}.pt")["trained_properties"]
+        assert recorded == read_checkpoint_payload(pair[chosen])["trained_properties"]
+
+
 def test_predicted_motion_does_not_change_when_the_whole_scene_moves(box_file):
     trainer = make_trainer(box_file, TINY, _config(steps=3))
     trainer.run()

@@ -28,4 +28,4 @@ if __name__ == "__main__":
     try:
         print(average_checkpoints(args.sources, args.output, chosen))
     except FignetError as error:
-        sys.exit(f"error: {error}")
+        sys.exit(f"error: {error}".replace("properties_from", "--properties-from K"))

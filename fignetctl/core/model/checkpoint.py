@@ -185,7 +185,7 @@ def average_checkpoints(sources, destination, properties_from: int | None = None
             if not same:
                 hint = (
                     " (or, where two versions of the trainer measured one dataset's properties"
-                    " differently, take one file's: average_models.py --properties-from K)"
+                    " differently, choose the file whose properties the mean keeps: properties_from)"
                     if field == "trained_properties"
                     else ""
                 )

@@ -174,25 +174,16 @@ def average_checkpoints(sources, destination, properties_from: int | None = None
     # file older than it lacks counts as its default
     simulators = [_simulator_from_payload(payload, source) for source, payload in zip(sources, payloads)]
     first, reference = payloads[0], simulators[0]
+    advice = "average runs of one model on one dataset"
     for source, simulator in zip(sources[1:], simulators[1:]):
-        for field, same in (
-            ("simulator_config", simulator.config == reference.config),
-            (
-                "trained_properties",
-                properties_from is not None or simulator.trained_properties == reference.trained_properties,
-            ),
-        ):
-            if not same:
-                hint = (
-                    " (or, where two versions of the trainer measured one dataset's properties"
-                    " differently, choose the file whose properties the mean keeps: properties_from)"
-                    if field == "trained_properties"
-                    else ""
-                )
-                raise FormatError(
-                    f"{source}: its {field} differ from {sources[0]}'s; average runs of one model on one"
-                    f" dataset{hint}"
-                )
+        if simulator.config != reference.config:
+            raise FormatError(f"{source}: its simulator_config differ from {sources[0]}'s; {advice}")
+        if properties_from is None and simulator.trained_properties != reference.trained_properties:
+            raise FormatError(
+                f"{source}: its trained_properties differ from {sources[0]}'s; {advice} (or, where two"
+                " versions of the trainer measured one dataset's properties differently, choose the file"
+                " whose properties the mean keeps: properties_from)"
+            )
     weights = {}
     for name, tensor in first["model"].items():
         stacked = torch.stack([payload["model"][name] for payload in payloads])

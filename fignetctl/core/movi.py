@@ -807,6 +807,10 @@ def generate(assets, config: MoviSettings, seed: int, indices, jobs: int = 1):
 # ----------------------------------------------------------------------------- the file
 
 
+DATASET_COUNTS = ("requested", "kept", "given_up", "attempts", "dropped")
+"""The `dataset_stats` that follow from the settings alone (the others are timings)."""
+
+
 def dataset_stats(results: list, seconds: float, jobs: int) -> dict:
     """Counts of kept, dropped (by reason) and given-up trajectories, and the throughput.
 

@@ -39,9 +39,10 @@ def parse_shard(text) -> tuple[int, int]:
 
 def run(output, settings: Settings = Settings(), progress=None, report=None) -> dict:
     """Simulate the trajectories of shard `settings.shard` and write them to the trajectory file
-    `output` (atomically, with the run's settings and stats in its attributes). `report` (default:
-    stderr) gets the summary line (kept, dropped by reason, throughput) before the file is written; returns
-    the stats with that line as `message`."""
+    `output` (atomically, with the run's settings and its counts in its attributes, never its
+    timings or jobs: the same command writes the same bytes, so the file's hash, which `train`
+    records, names the data). `report` (default: stderr) gets the summary line (kept, dropped by
+    reason, throughput) before the file is written; returns the stats with that line as `message`."""
     import json
     import time
 
@@ -71,18 +72,19 @@ def run(output, settings: Settings = Settings(), progress=None, report=None) -> 
         "num_trajectories": settings.num_trajectories,
         "split": settings.split,
         "config": config.to_json(),
-        "stats": json.dumps(stats),
-        "trajectories_per_minute": stats["trajectories_per_minute"],
+        "stats": json.dumps({key: stats[key] for key in movi.DATASET_COUNTS}),
     }
     write_trajectories(output, movi.dataset_file(results, assets, config, settings.num_trajectories, attrs))
     return {"output": str(output), **stats, "message": message}
 
 
 def summary_line(stats: dict) -> str:
-    """One line for stderr: kept, dropped by reason, throughput."""
+    """One line for stderr: kept, dropped by reason, throughput and the jobs' speed-up (the
+    trajectories' simulation time summed over the wall time)."""
     dropped = ", ".join(f"{count} {reason}" for reason, count in stats["dropped"].items())
+    speed_up = stats["simulation_seconds"] / max(stats["seconds"], 1e-9)
     return (
         f"kept {stats['kept']}/{stats['requested']} trajectories ({stats['given_up']} given up); "
         f"dropped scenes: {dropped}; {stats['trajectories_per_minute']:.1f} trajectories/minute "
-        f"with {stats['jobs']} job(s)"
+        f"with {stats['jobs']} job(s), {speed_up:.1f}x one job's simulation rate"
     )

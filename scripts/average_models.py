@@ -8,7 +8,7 @@ Measure the mean beside each run: docs/training-record.md has what it did for th
 import argparse
 import sys
 
-from fignetctl.core.model.checkpoint import average_checkpoints
+from fignetctl.core.model.checkpoint import PropertiesDiffer, average_checkpoints
 from fignetctl.errors import FignetError
 
 if __name__ == "__main__":
@@ -27,5 +27,7 @@ if __name__ == "__main__":
     chosen = None if args.properties_from is None else args.properties_from - 1
     try:
         print(average_checkpoints(args.sources, args.output, chosen))
+    except PropertiesDiffer as error:
+        sys.exit(f"error: {error}: --properties-from K")
     except FignetError as error:
-        sys.exit(f"error: {error}".replace("properties_from", "--properties-from K"))
+        sys.exit(f"error: {error}")

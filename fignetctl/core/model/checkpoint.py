@@ -156,6 +156,10 @@ def export_checkpoint(source, destination, trained_on=None, dt=None, gravity=Non
     return save_torch_payload(destination, payload)
 
 
+class PropertiesDiffer(FormatError):
+    """`average_checkpoints` was given files whose trained properties differ and no choice."""
+
+
 def average_checkpoints(sources, destination, properties_from: int | None = None) -> Path:
     """Average the weights of model files into one, without training state: a "model soup"
     (Wortsman et al. 2022) of runs continued from one model with other seeds, which stay close
@@ -179,10 +183,10 @@ def average_checkpoints(sources, destination, properties_from: int | None = None
         if simulator.config != reference.config:
             raise FormatError(f"{source}: its simulator_config differ from {sources[0]}'s; {advice}")
         if properties_from is None and simulator.trained_properties != reference.trained_properties:
-            raise FormatError(
+            raise PropertiesDiffer(
                 f"{source}: its trained_properties differ from {sources[0]}'s; {advice} (or, where two"
                 " versions of the trainer measured one dataset's properties differently, choose the file"
-                " whose properties the mean keeps: properties_from)"
+                " whose properties the mean keeps)"
             )
     weights = {}
     for name, tensor in first["model"].items():

@@ -1,5 +1,8 @@
 import dataclasses
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,6 +29,8 @@ from fignetctl.core.model.training import (
 from fignetctl.core.trajectory import read_trajectories, write_trajectories
 from fignetctl.errors import FignetError, FormatError, SettingError
 from tests.conftest import box_drop_file
+
+ROOT = Path(__file__).resolve().parents[3]
 
 TINY = SimulatorConfig(network=PRESETS["tiny"], graph=GraphConfig(0.1, False))
 
@@ -388,6 +393,22 @@ def test_averaging_takes_the_chosen_files_properties_only_when_told(box_file, tm
         average_checkpoints(pair, tmp_path / f"soup-{chosen}.pt", properties_from=chosen)
         recorded = read_checkpoint_payload(tmp_path / f"soup-{chosen}.pt")["trained_properties"]
         assert recorded == read_checkpoint_payload(pair[chosen])["trained_properties"]
+
+    def script(*args):
+        command = [sys.executable, str(ROOT / "scripts" / "average_models.py"), *map(str, pair), *args]
+        return subprocess.run(command, capture_output=True, text=True, timeout=120)
+
+    refused = script("-o", tmp_path / "soup.pt")
+    assert refused.returncode != 0 and "Traceback" not in refused.stderr
+    assert "trained_properties differ" in refused.stderr and refused.stderr.rstrip().endswith(
+        "--properties-from K"
+    )
+    assert script("-o", tmp_path / "soup.pt", "--properties-from", "3").returncode == 2
+    assert not (tmp_path / "soup.pt").exists()
+    chosen = script("-o", tmp_path / "soup.pt", "--properties-from", "2")
+    assert chosen.returncode == 0, chosen.stderr
+    recorded = read_checkpoint_payload(tmp_path / "soup.pt")["trained_properties"]
+    assert recorded == read_checkpoint_payload(pair[1])["trained_properties"]
 
 
 def test_predicted_motion_does_not_change_when_the_whole_scene_moves(box_file):

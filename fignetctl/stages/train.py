@@ -112,6 +112,14 @@ class Settings:
     target_keeps_noise: bool = setting(
         True, "The target keeps frame t's noise, so resting objects stop (docs/simulator.md)."
     )
+    undo_position_noise: float = setting(
+        0.0,
+        "With the noise kept, the fraction of frame t's pose noise the target position still "
+        "undoes, velocity unchanged: objects pushed into the floor come back out (docs/training-record.md).",
+        low=0,
+        high=1,
+        metavar="FRACTION",
+    )
     frame_sampling: str = setting(
         "uniform",
         "Which frames the examples are: uniform, or motion (impact frames drawn more often, their "
@@ -236,6 +244,7 @@ def configs(settings: Settings, device: str = "cpu"):
         noise_translation_std=settings.noise[0],
         noise_rotation_std=settings.noise[1],
         target_keeps_noise=settings.target_keeps_noise,
+        position_noise_undone=settings.undo_position_noise,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,
         added_blocks_learning_rate_scale=settings.added_blocks_learning_rate_scale,

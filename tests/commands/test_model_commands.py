@@ -206,7 +206,16 @@ def test_train_stops_at_its_time_limit_with_exit_75_and_resume_finishes(tmp_path
     data = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
     model = tmp_path / "model.pt"
     args = ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "3", "--resume"]
-    args += ["--frame-sampling", "motion", "--calm-weight", "2", "--rest-weight", "30"]
+    args += [
+        "--frame-sampling",
+        "motion",
+        "--calm-weight",
+        "2",
+        "--rest-weight",
+        "30",
+        "--undo-position-noise",
+        "0.3",
+    ]
     stopped = CliRunner().invoke(cli, [*args, "--time-limit", "1e-9"])
     assert stopped.exit_code == 75, stopped.output
     assert "stopped at the time limit after step 1 of 3" in stopped.output and "--resume" in stopped.output
@@ -216,7 +225,7 @@ def test_train_stops_at_its_time_limit_with_exit_75_and_resume_finishes(tmp_path
     state = torch.load(model, weights_only=True)["training_state"]
     stored = json.loads(state["training_config"])
     assert state["step"] == 3 and stored["frame_sampling"] == "motion" and stored["calm_weight"] == 2
-    assert stored["rest_weight"] == 30
+    assert stored["rest_weight"] == 30 and stored["position_noise_undone"] == 0.3
     refused = CliRunner().invoke(cli, [*args, "--time-limit", "0"])
     assert refused.exit_code == 2 and "--time-limit" in refused.output
 

@@ -80,6 +80,13 @@ class TrainingSettings:
     small velocity v is told a = −v and stops. False (model files before this field): the
     target undoes the position noise as well, a = −2v, which a rollout turns into a
     period-2 oscillation of resting objects (±v every frame, for ever)."""
+    position_noise_undone: float = 0.0
+    """With `target_keeps_noise`, the fraction of frame t's pose noise the target position still
+    undoes (not its velocity, which keeps the noise's): 0 keeps it all; a fraction α teaches the
+    network to move an object a fraction α of the way back onto the recording in one step
+    without changing its velocity, which it can tell only where contact shows where the object
+    belongs (an object pushed into the floor, or lifted off it), and which is no period-2
+    oscillation for α < 1."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
     huber_delta: float = 0.5
@@ -260,18 +267,16 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
     """The raw graph of frames t − 1, t, t + 1 = `frame` + (−1, 0, 1) as given ((3, O, 3),
     (3, O, 4); frame t may differ from the scene's, by noise or a prediction; frame t + 1 is the
     scene's) with `velocities` (per step, or None), and the raw targets that reach the scene's
-    frame t + 1 (shifted by frame t's difference from the scene's when the target keeps it)."""
+    frame t + 1 (shifted by frame t's difference from the scene's when the target keeps it, less
+    the `position_noise_undone` fraction of it)."""
     geometry = scene.geometry
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
-        after = (
-            after
-            + now
-            - geometry.world_vertices(
-                scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
-            )
+        recorded_now = geometry.world_vertices(
+            scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
         )
+        after = after + (1.0 - config.position_noise_undone) * (now - recorded_now)
     next_velocities = None
     if velocities is not None:
         next_velocities = rigid_point_velocities(

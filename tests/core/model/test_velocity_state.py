@@ -394,6 +394,27 @@ def test_a_pushforward_example_is_the_noise_free_one_from_an_exact_prediction_an
     torch.testing.assert_close(shifted[:, 3:], clean[:, 3:])
 
 
+@pytest.mark.parametrize("undone", [0.25, 1.0])
+def test_a_target_undoes_the_asked_fraction_of_frame_ts_error_in_position_only(tmp_path, undone):
+    """`position_noise_undone` = α: x_{t+1} = x_t + u_t + a_x with a_x moved back by α of frame
+    t's error (a shifted prediction here); the velocity part of the target is unchanged."""
+    from fignetctl.core.model.training import pushforward_example
+
+    path = write_trajectories(tmp_path / "box.h5", box_drop_file(frames=12))
+    kept = TrainingSettings(noise_translation_std=0.0, noise_rotation_std=0.0)
+    scene = make_trainer(path, VELOCITY_TINY, kept).scenes[0]
+    shift = np.array([0.01, -0.02, 0.005])
+    oracle = _Oracle(VELOCITY_TINY, scene, 5, shift)
+    _, keeping = pushforward_example(oracle, scene, 5, kept)
+    _, undoing = pushforward_example(
+        oracle, scene, 5, dataclasses.replace(kept, position_noise_undone=undone)
+    )
+    torch.testing.assert_close(
+        undoing[:, :3], keeping[:, :3] - undone * torch.tensor(shift, dtype=torch.float32)
+    )
+    torch.testing.assert_close(undoing[:, 3:], keeping[:, 3:])
+
+
 def test_pushforward_training_predicts_its_own_frames_and_resumes_exactly(tmp_path, monkeypatch):
     from fignetctl.core.model import training
 

@@ -184,9 +184,13 @@ def test_no_library_message_names_a_command_line_flag():
             if isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
         }
         for node in ast.walk(tree):
-            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
-                if re.search(r"(^|[\s(])--[a-z][a-z-]+", node.value):
-                    found.append(f"{path.name}:{node.lineno}: {node.value[:80]}")
+            if (
+                isinstance(node, ast.Constant)
+                and isinstance(node.value, str)
+                and id(node) not in docstrings
+                and re.search(r"(^|[\s(])--[a-z][a-z-]+", node.value)
+            ):
+                found.append(f"{path.name}:{node.lineno}: {node.value[:80]}")
             if isinstance(node, (ast.Import, ast.ImportFrom)):
                 names = [alias.name for alias in node.names] + [getattr(node, "module", None) or ""]
                 if {"argparse", "click"} & {name.split(".")[0] for name in names}:

@@ -1,16 +1,18 @@
-"""The tree stays formatted to the project's line length (pyproject.toml, [tool.ruff])."""
+"""The tree stays formatted to the project's line length and passes ruff's checks (pyproject.toml,
+[tool.ruff] and [tool.ruff.lint])."""
 
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_the_tree_is_formatted_to_the_line_length():
+@pytest.mark.parametrize("command", [["format", "--check"], ["check"]], ids=["format", "check"])
+def test_the_tree_passes_ruff(command):
     ruff = shutil.which("ruff") or str(Path(sys.executable).parent / "ruff")
-    check = subprocess.run(
-        [ruff, "format", "--check", str(ROOT)], capture_output=True, text=True, timeout=120
-    )
-    assert check.returncode == 0, check.stdout + check.stderr
+    result = subprocess.run([ruff, *command, str(ROOT)], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr

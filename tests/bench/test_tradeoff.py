@@ -1,5 +1,6 @@
 import csv
 import json
+import typing
 
 import numpy as np
 import pytest
@@ -132,7 +133,7 @@ def test_marching_cubes_sweep_on_an_analytic_sphere(tmp_path, monkeypatch):
     (tmp_path / "prompts.json").write_text(json.dumps({"objects": [{"id": 1, "name": "ball", "points": []}]}))
 
     class Sphere:
-        metrics = {}
+        metrics: typing.ClassVar[dict] = {}
 
         @staticmethod
         def density(points):

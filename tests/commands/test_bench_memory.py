@@ -44,7 +44,7 @@ def bench(tmp_path_factory):
 
 
 def test_json_records_settings_method_and_models(bench):
-    _, data, result, _ = bench
+    _, _data, result, _ = bench
     assert result["format"] == "fignetctl.bench-memory" and result["format_version"] == 1
     assert result["config"]["samples"] == 2 and result["config"]["repeats"] == 2
     assert "torch.profiler" in result["method"]["memory"]  # the CPU method is named

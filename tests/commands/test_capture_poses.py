@@ -34,7 +34,7 @@ def views(tmp_path_factory):
 
 
 def test_images_to_cameras_in_metres_z_up(views, tmp_path):
-    folder, truth = views
+    folder, _truth = views
     output = tmp_path / "out" / "cameras.npz"
     result = run(
         "--images",
@@ -171,7 +171,7 @@ def test_blank_images_write_nothing(tmp_path):
 
 
 def test_cameras_that_do_not_match_the_images(tmp_path, views):
-    folder, truth = views
+    _folder, truth = views
     write_cameras(tmp_path / "cameras.npz", truth)
     other = tmp_path / "other"
     other.mkdir()

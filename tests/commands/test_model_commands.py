@@ -180,7 +180,7 @@ def test_train_decimation_option_reaches_the_model_file(trained, tmp_path):
 
 
 def test_train_refuses_existing_output_and_resumes_on_request(trained):
-    folder, data, model = trained
+    _folder, data, model = trained
     result = CliRunner().invoke(cli, ["train", str(data), "-o", str(model), "--size", "tiny", "--steps", "8"])
     assert result.exit_code == 2 and "--overwrite" in result.output
     result = CliRunner().invoke(

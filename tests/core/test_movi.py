@@ -6,6 +6,7 @@ so the tests do not depend on the preset shape library.
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,7 +117,7 @@ def test_prepared_l_shape_has_its_compound_inertia(tmp_path, shapes):
     assert ell.volume == pytest.approx(3.0) and ell.shape.largest_side == pytest.approx(2.0)
     # The L's centre of mass is off both boxes' centres, so its inertia is not diagonal.
     assert abs(ell.inertia[0, 1]) > 0.1
-    assert ell.collision_file.endswith(".obj") and open(ell.collision_file).read().count("\no ") == 1
+    assert ell.collision_file.endswith(".obj") and Path(ell.collision_file).read_text().count("\no ") == 1
 
 
 def test_shape_names_must_be_unique_and_not_floor(shapes):
@@ -374,7 +375,7 @@ def test_shapes_that_cannot_roll_come_to_rest_on_the_floor(tosses):
 
 
 def test_energy_is_conserved_in_free_flight_and_never_grows(tosses):
-    config, by_name, trajectories = tosses
+    _config, by_name, trajectories = tosses
     checked = 0
     for trajectory in trajectories:
         energy = energies(trajectory)

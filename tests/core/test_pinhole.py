@@ -99,7 +99,7 @@ def test_look_at_and_orbit_look_at_the_target():
         assert np.linalg.det(c2w[:3, :3]) == pytest.approx(1.0)
         np.testing.assert_allclose(c2w[2, 3] - centre[2], 2.0 * np.sin(np.radians(30.0)))
         camera = pinhole.Camera(pinhole.intrinsics_from_fov(WIDTH, HEIGHT, 40.0), c2w, WIDTH, HEIGHT)
-        image, depth = camera.project(centre[None])
+        image, _depth = camera.project(centre[None])
         np.testing.assert_allclose(image[0], [WIDTH / 2, HEIGHT / 2], atol=1e-9)  # in the middle
         assert camera.c2w[2, 1] < 0  # image y (down) points down in the world (z up)
     down = pinhole.look_at([0, 0, 3], [0, 0, 0])

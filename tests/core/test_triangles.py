@@ -248,8 +248,8 @@ def test_known_distances():
 
 
 def test_swapping_and_reordering_vertices_keeps_the_distance(pairs_and_result):
-    triangles_a, triangles_b, _, (point_a, point_b, distance) = pairs_and_result
-    swapped_b, swapped_a, swapped_distance = closest_points_triangles(triangles_b, triangles_a)
+    triangles_a, triangles_b, _, (_point_a, _point_b, distance) = pairs_and_result
+    _swapped_b, _swapped_a, swapped_distance = closest_points_triangles(triangles_b, triangles_a)
     assert np.allclose(swapped_distance, distance, atol=1e-12)
     _, _, reordered = closest_points_triangles(triangles_a[:, [2, 0, 1]], triangles_b[:, [1, 0, 2]])
     assert np.allclose(reordered, distance, atol=1e-12)

@@ -59,7 +59,7 @@ def test_rotation_between_takes_a_to_b_including_opposite():
 
 def test_ransac_plane_ignores_clutter():
     scene = table_scene()
-    normal, centroid, mask = wa.fit_plane_ransac(scene.points, threshold=0.005, seed=0)
+    normal, _centroid, mask = wa.fit_plane_ransac(scene.points, threshold=0.005, seed=0)
     assert angle_deg(np.abs(normal), np.array([0, 0, 1.0])) < 1e-6
     assert mask[:400].all() and mask[400:].sum() < 5
 

@@ -229,7 +229,7 @@ def test_a_velocity_model_learns_free_fall_and_its_rollout_carries_velocities(tm
     trainer.run()
     simulator = trainer.simulator.eval()
     scene = trainer.scenes[0]
-    positions, quaternions, velocities, angular = rollout(simulator, scene, 20, with_velocities=True)
+    positions, _quaternions, velocities, angular = rollout(simulator, scene, 20, with_velocities=True)
     assert velocities.shape == angular.shape == (22, 2, 3)
     np.testing.assert_allclose(
         positions[:, 1], scene.positions[:22, 1], atol=0.02

@@ -115,7 +115,7 @@ class Settings:
     undo_position_noise: float = setting(
         0.0,
         "With the noise kept, the fraction of frame t's pose noise the target position still "
-        "undoes, velocity unchanged: objects pushed into the floor come back out (docs/training-record.md).",
+        "undoes, velocity unchanged, so objects pushed into the floor are moved back (docs/training-record.md).",
         low=0,
         high=1,
         metavar="FRACTION",

@@ -81,12 +81,12 @@ class TrainingSettings:
     target undoes the position noise as well, a = −2v, which a rollout turns into a
     period-2 oscillation of resting objects (±v every frame, for ever)."""
     position_noise_undone: float = 0.0
-    """With `target_keeps_noise`, the fraction of frame t's pose noise the target position still
-    undoes (not its velocity, which keeps the noise's): 0 keeps it all; a fraction α teaches the
-    network to move an object a fraction α of the way back onto the recording in one step
-    without changing its velocity, which it can tell only where contact shows where the object
-    belongs (an object pushed into the floor, or lifted off it), and which is no period-2
-    oscillation for α < 1."""
+    """With `target_keeps_noise`, the fraction α of frame t's pose noise that the target position
+    still undoes (0: none). It teaches the network to move an object α of the way back onto the
+    recording in one step, which it can tell only where contact shows where the object belongs
+    (pushed into the floor, or lifted off it). A velocity state's velocity target is the
+    recording's whatever α, so nothing oscillates; for a positions state α = 1 is the target of
+    `target_keeps_noise` False, whose a = −2v does."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
     huber_delta: float = 0.5

@@ -8,6 +8,12 @@ sees decimated meshes), and how far objects moved over the last 50 steps (settle
 should not drift), beside how far they moved in the recording over the same frames where it is
 that long (`make-dataset --duration 7` covers 200 steps: balls roll on in PyBullet too).
 
+Where the depth is made: the depth of the object that goes deepest (in the rollout, and in the
+recording) is split over the steps that took it deeper than it had been, by how fast the object
+came into each of them (its centre's speed over the step before): a depth made
+in one or two fast steps is an impact the step does not stop, a depth made at walking pace or
+slower is an object sinking (`depth_by_speed`).
+
     python benchmarks/long_rollout.py --model fignetctl/assets/models/fignet-star-movi-b.pt \
         --data data/movi-b-test.h5 -n 10 --steps 200 --out docs/results/long-rollout.json
 """
@@ -27,13 +33,53 @@ from fignetctl.core.trajectory import read_trajectories
 
 SETTLE_WINDOW = 50
 
+SPEED_BINS = (0.1, 0.5, 2.0)
+"""m/s: the edges of the speed classes of `depth_by_speed` (below 0.1: resting or sinking;
+above 2: falling or thrown)."""
 
-def lowest_dynamic_z(scene, positions, quaternions):
-    """(T,) lowest z of any dynamic vertex per frame."""
-    dynamic = scene.geometry.dynamic_vertices
-    return np.array(
-        [scene.geometry.world_vertices(p, q)[dynamic, 2].min() for p, q in zip(positions, quaternions)]
-    )
+
+def object_depths(scene, positions, quaternions, floor):
+    """(T, O) depth of each object's lowest vertex below `floor` (0 above it; 0 for static ones)."""
+    geometry = scene.geometry
+    depths = np.zeros(positions.shape[:2])
+    for t, (p, q) in enumerate(zip(positions, quaternions)):
+        z = geometry.world_vertices(p, q)[:, 2]
+        for o in np.flatnonzero(~geometry.static):
+            depths[t, o] = max(0.0, floor - z[geometry.vertex_object == o].min())
+    return depths
+
+
+def speed_class(speed) -> str:
+    """The `SPEED_BINS` class of a speed in m/s, as "lo-hi m/s"."""
+    edges = (0.0, *SPEED_BINS, np.inf)
+    k = int(np.searchsorted(SPEED_BINS, speed, side="right"))
+    return f"{edges[k]:g}-{edges[k + 1]:g} m/s"
+
+
+def depth_by_speed(depths, positions, dt) -> dict:
+    """For the object of the largest depth in `depths` (T, O): its depth, the frame where it is
+    reached, and that depth split by the `speed_class` of its centre over the step before each
+    step that took it deeper than it had been (over the step itself for step 1; a depth it
+    starts at is "at the start"). An object that rolls, its lowest vertex dipping in and out,
+    adds only its new depths."""
+    frame, deepest = np.unravel_index(int(np.argmax(depths)), depths.shape)
+    speeds = np.linalg.norm(np.diff(positions[:, deepest], axis=0), axis=1) / dt  # [t - 1]: over step t
+    record = np.maximum.accumulate(depths[: frame + 1, deepest])
+    gained = {"at the start": float(record[0])} | {speed_class(s): 0.0 for s in (0.0, *SPEED_BINS)}
+    for t in np.flatnonzero(np.diff(record) > 0) + 1:
+        gained[speed_class(speeds[max(t - 2, 0)])] += float(record[t] - record[t - 1])
+    return {
+        "object": int(deepest),
+        "depth_m": float(depths[frame, deepest]),
+        "frame": int(frame),
+        "depth_by_entry_speed_m": {k: round(v, 5) for k, v in gained.items()},
+    }
+
+
+def summed_gains(deepest) -> dict:
+    """`depth_by_speed`'s depths summed over trajectories, per speed class."""
+    classes = deepest[0]["depth_by_entry_speed_m"]
+    return {k: round(sum(d["depth_by_entry_speed_m"][k] for d in deepest), 5) for k in classes}
 
 
 def one_trajectory(simulator, scene, steps, **options):
@@ -45,7 +91,9 @@ def one_trajectory(simulator, scene, steps, **options):
     static_vertices = scene.geometry.static[scene.geometry.vertex_object]
     floor = scene.geometry.world_vertices(scene.positions[0], scene.quaternions[0])[static_vertices, 2].max()
     frames = len(positions)  # the recorded frames the rollout covers (all, when it is longer)
-    recorded_low = lowest_dynamic_z(scene, scene.positions[:frames], scene.quaternions[:frames])
+    depths = object_depths(scene, positions, quaternions, floor)
+    recorded = scene.positions[:frames], scene.quaternions[:frames]
+    recorded_depths = object_depths(scene, *recorded, floor)
     dynamic = ~scene.geometry.static
     window = min(SETTLE_WINDOW, frames)  # all of a shorter rollout
     drift = np.linalg.norm(positions[-1, dynamic] - positions[-window, dynamic], axis=1)
@@ -53,10 +101,12 @@ def one_trajectory(simulator, scene, steps, **options):
         "trajectory": scene.name,
         "frames": frames,
         "finite": finite,
-        "max_penetration_m": float(max(0.0, floor - lowest_dynamic_z(scene, positions, quaternions).min())),
-        "recorded_max_penetration_m": float(max(0.0, floor - recorded_low.min())),
-        "recorded_frames": len(recorded_low),
+        "max_penetration_m": float(depths.max()),
+        "recorded_max_penetration_m": float(recorded_depths.max()),
+        "recorded_frames": len(recorded_depths),
         "drift_last_50_steps_m": drift.round(4).tolist(),
+        "deepest": depth_by_speed(depths, positions, scene.dt),
+        "recorded_deepest": depth_by_speed(recorded_depths, recorded[0], scene.dt),
     }
     if len(scene.positions) >= frames:  # the recording covers the rollout
         recorded = scene.positions[frames - window : frames]
@@ -113,6 +163,8 @@ def main():
         "recorded_max_penetration_m": max(r["recorded_max_penetration_m"] for r in rows),
         "trajectories_deeper_than_2cm": sum(r["max_penetration_m"] > 0.02 for r in rows),
         "recorded_trajectories_deeper_than_2cm": sum(r["recorded_max_penetration_m"] > 0.02 for r in rows),
+        "deepest_depth_by_entry_speed_m": summed_gains([r["deepest"] for r in rows]),
+        "recorded_deepest_depth_by_entry_speed_m": summed_gains([r["recorded_deepest"] for r in rows]),
         "median_drift_last_50_steps_m": float(np.median(drifts)),
         "fraction_objects_drift_below_1cm": float(np.mean(drifts < 0.01)),
     }

@@ -52,3 +52,25 @@ def test_the_recorded_drift_is_the_recording_s_own_motion_over_the_rollout_s_las
     assert "recorded_drift_last_50_steps_m" not in long_rollout.one_trajectory(
         simulator, scene, 40, guards=guards
     )
+
+
+def test_the_deepest_object_s_depth_is_split_by_how_fast_it_came_into_each_step_that_took_it_deeper():
+    """Object 1 starts 1 mm deep, falls at 3 m/s and goes 4 cm into the floor in one step,
+    bounces up at 0.2 m/s to 2 cm, then sinks 4 mm a step at 0.04 m/s to 4.4 cm: 1 mm at the
+    start, 3.9 cm fast and, of the slow sinking, only the 4 mm below the 4 cm it had reached.
+    Object 0 never goes as deep."""
+    dt = 0.1
+    z = np.array([1.0, 0.7, 0.4, 0.1, 0.12, 0.116, 0.112, 0.108, 0.104, 0.100, 0.096])
+    positions = np.zeros((len(z), 2, 3))
+    positions[:, 1, 2] = z
+    depths = np.zeros((len(z), 2))
+    depths[:3, 1] = 0.001
+    depths[3:, 1] = 0.14 - z[3:]
+    depths[:, 0] = 0.03
+    row = long_rollout.depth_by_speed(depths, positions, dt)
+    assert row["object"] == 1 and row["frame"] == 10
+    np.testing.assert_allclose(row["depth_m"], 0.044)
+    split = row["depth_by_entry_speed_m"]
+    assert list(split) == ["at the start", "0-0.1 m/s", "0.1-0.5 m/s", "0.5-2 m/s", "2-inf m/s"]
+    np.testing.assert_allclose(list(split.values()), [0.001, 0.004, 0.0, 0.0, 0.039], atol=1e-9)
+    np.testing.assert_allclose(sum(split.values()), row["depth_m"])

@@ -120,12 +120,6 @@ class Settings:
         high=1,
         metavar="FRACTION",
     )
-    undo_position_noise_along: str = setting(
-        "all",
-        "Which part of each vertex's pose noise that fraction is of: all, or only its component "
-        "along gravity (nothing shows where a resting object was across the floor).",
-        choices=("all", "gravity"),
-    )
     frame_sampling: str = setting(
         "uniform",
         "Which frames the examples are: uniform, or motion (impact frames drawn more often, their "
@@ -251,7 +245,6 @@ def configs(settings: Settings, device: str = "cpu"):
         noise_rotation_std=settings.noise[1],
         target_keeps_noise=settings.target_keeps_noise,
         position_noise_undone=settings.undo_position_noise,
-        position_noise_undone_along=settings.undo_position_noise_along,
         checkpoint_every=settings.checkpoint_every,
         seed=settings.seed,
         added_blocks_learning_rate_scale=settings.added_blocks_learning_rate_scale,

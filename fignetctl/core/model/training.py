@@ -87,11 +87,6 @@ class TrainingSettings:
     (pushed into the floor, or lifted off it). A velocity state's velocity target is the
     recording's whatever α, so nothing oscillates; for a positions state α = 1 is the target of
     `target_keeps_noise` False, whose a = −2v does."""
-    position_noise_undone_along: str = "all"
-    """Which part of each vertex's noise `position_noise_undone` undoes: 'all' of it, or only
-    'gravity', its component along gravity. Contact with the floor shows how far an object is
-    in it or above it, but nothing shows where a resting object was across the floor, so
-    undoing that part asks for what no input tells."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
     huber_delta: float = 0.5
@@ -281,13 +276,7 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
         recorded_now = geometry.world_vertices(
             scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
         )
-        error = now - recorded_now
-        after = (
-            after
-            + error
-            - config.position_noise_undone
-            * undone_part(error, config.position_noise_undone_along, simulator_config.gravity)
-        )
+        after = after + (1.0 - config.position_noise_undone) * (now - recorded_now)
     next_velocities = None
     if velocities is not None:
         next_velocities = rigid_point_velocities(
@@ -302,20 +291,6 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
     free_motion = free_motion_of(simulator_config, geometry, now, positions[1], velocities)
     targets = acceleration_targets(after, previous, now, next_velocities, free_motion)
     return scene_graph, torch.from_numpy(targets.astype(np.float32))
-
-
-def undone_part(error, along: str, gravity):
-    """(V, 3) the part of each vertex's error (V, 3) that `position_noise_undone` undoes:
-    all of it, or its component along `gravity`."""
-    if along == "all":
-        return error
-    if along != "gravity":
-        raise FignetError(f"position_noise_undone_along = {along!r}: choose 'all' or 'gravity'")
-    down = np.asarray(gravity, np.float64)
-    if not np.linalg.norm(down) > 0:
-        raise FignetError("the noise along gravity is undone, but this model's gravity is zero")
-    down = down / np.linalg.norm(down)
-    return np.outer(error @ down, down)
 
 
 CALM_TOLERANCE = 0.1

@@ -10,9 +10,9 @@ that long (`make-dataset --duration 7` covers 200 steps: balls roll on in PyBull
 
 Where the depth is made: the depth of the object that goes deepest (in the rollout, and in the
 recording) is split over the steps that took it deeper than it had been, by how fast the object
-came into each of them (its centre's speed over the step before): a depth made
-in one or two fast steps is an impact the step does not stop, a depth made at walking pace or
-slower is an object sinking (`depth_by_speed`).
+came into each of them (its centre's speed over the step before, `depth_by_speed`): depth made
+in a fast step is an impact the step does not stop, depth made below 0.1 m/s an object sinking
+where it rests.
 
     python benchmarks/long_rollout.py --model fignetctl/assets/models/fignet-star-movi-b.pt \
         --data data/movi-b-test.h5 -n 10 --steps 200 --out docs/results/long-rollout.json
@@ -76,7 +76,7 @@ def depth_by_speed(depths, positions, dt) -> dict:
     }
 
 
-def summed_gains(deepest) -> dict:
+def summed_depths(deepest) -> dict:
     """`depth_by_speed`'s depths summed over trajectories, per speed class."""
     classes = deepest[0]["depth_by_entry_speed_m"]
     return {k: round(sum(d["depth_by_entry_speed_m"][k] for d in deepest), 5) for k in classes}
@@ -92,8 +92,8 @@ def one_trajectory(simulator, scene, steps, **options):
     floor = scene.geometry.world_vertices(scene.positions[0], scene.quaternions[0])[static_vertices, 2].max()
     frames = len(positions)  # the recorded frames the rollout covers (all, when it is longer)
     depths = object_depths(scene, positions, quaternions, floor)
-    recorded = scene.positions[:frames], scene.quaternions[:frames]
-    recorded_depths = object_depths(scene, *recorded, floor)
+    recorded_poses = scene.positions[:frames], scene.quaternions[:frames]
+    recorded_depths = object_depths(scene, *recorded_poses, floor)
     dynamic = ~scene.geometry.static
     window = min(SETTLE_WINDOW, frames)  # all of a shorter rollout
     drift = np.linalg.norm(positions[-1, dynamic] - positions[-window, dynamic], axis=1)
@@ -106,7 +106,7 @@ def one_trajectory(simulator, scene, steps, **options):
         "recorded_frames": len(recorded_depths),
         "drift_last_50_steps_m": drift.round(4).tolist(),
         "deepest": depth_by_speed(depths, positions, scene.dt),
-        "recorded_deepest": depth_by_speed(recorded_depths, recorded[0], scene.dt),
+        "recorded_deepest": depth_by_speed(recorded_depths, recorded_poses[0], scene.dt),
     }
     if len(scene.positions) >= frames:  # the recording covers the rollout
         recorded = scene.positions[frames - window : frames]
@@ -163,8 +163,8 @@ def main():
         "recorded_max_penetration_m": max(r["recorded_max_penetration_m"] for r in rows),
         "trajectories_deeper_than_2cm": sum(r["max_penetration_m"] > 0.02 for r in rows),
         "recorded_trajectories_deeper_than_2cm": sum(r["recorded_max_penetration_m"] > 0.02 for r in rows),
-        "deepest_depth_by_entry_speed_m": summed_gains([r["deepest"] for r in rows]),
-        "recorded_deepest_depth_by_entry_speed_m": summed_gains([r["recorded_deepest"] for r in rows]),
+        "deepest_depth_by_entry_speed_m": summed_depths([r["deepest"] for r in rows]),
+        "recorded_deepest_depth_by_entry_speed_m": summed_depths([r["recorded_deepest"] for r in rows]),
         "median_drift_last_50_steps_m": float(np.median(drifts)),
         "fraction_objects_drift_below_1cm": float(np.mean(drifts < 0.01)),
     }

@@ -27,6 +27,7 @@ import numpy as np
 from fignetctl.bench.options import add_rotations_option
 from fignetctl.core.atomic import write_json
 from fignetctl.core.model.apply import load_model
+from fignetctl.core.model.evaluation import lowest_object_z
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
 from fignetctl.core.model.scene_data import DECIMATIONS, EVALUATION_STATIC_REACH, scene_from_trajectory
 from fignetctl.core.trajectory import read_trajectories
@@ -41,12 +42,8 @@ above 2: falling or thrown)."""
 def object_depths(scene, positions, quaternions, floor):
     """(T, O) depth of each object's lowest vertex below `floor` (0 above it; 0 for static ones)."""
     geometry = scene.geometry
-    depths = np.zeros(positions.shape[:2])
-    for t, (p, q) in enumerate(zip(positions, quaternions)):
-        z = geometry.world_vertices(p, q)[:, 2]
-        for o in np.flatnonzero(~geometry.static):
-            depths[t, o] = max(0.0, floor - z[geometry.vertex_object == o].min())
-    return depths
+    lowest = np.stack([lowest_object_z(geometry, p, q) for p, q in zip(positions, quaternions)])
+    return np.where(geometry.static, 0.0, np.maximum(0.0, floor - lowest))
 
 
 def speed_class(speed) -> str:

@@ -69,7 +69,7 @@ def constant_velocity_baseline(scene, num_steps, gravity, dt):
         flown = free_flight_poses(positions[-2:], quaternions[-2:], step_gravity)
         position = np.where(moving[:, None], flown[0], positions[-1])
         quaternion = np.where(moving[:, None], flown[1], quaternions[-1])
-        landed = moving & (_lowest_z(geometry, position, quaternion) <= floor)
+        landed = moving & (lowest_object_z(geometry, position, quaternion) <= floor)
         position[landed] = positions[-1][landed]
         quaternion[landed] = quaternions[-1][landed]
         moving &= ~landed
@@ -78,7 +78,7 @@ def constant_velocity_baseline(scene, num_steps, gravity, dt):
     return np.stack(positions), np.stack(quaternions)
 
 
-def _lowest_z(geometry, positions, quaternions):
+def lowest_object_z(geometry, positions, quaternions):
     """(O,) lowest world z of each object's vertices."""
     z = geometry.world_vertices(positions, quaternions)[:, 2]
     lowest = np.full(geometry.num_objects, np.inf)
@@ -88,7 +88,7 @@ def _lowest_z(geometry, positions, quaternions):
 
 def _floor_height(geometry, positions, quaternions):
     """The lowest static vertex, or −inf when the scene has no static object."""
-    lowest = _lowest_z(geometry, positions, quaternions)
+    lowest = lowest_object_z(geometry, positions, quaternions)
     return lowest[geometry.static].min() if geometry.static.any() else -np.inf
 
 

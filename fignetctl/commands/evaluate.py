@@ -27,7 +27,8 @@ def evaluate(data, model_path, output, overwrite, **settings):
     """Roll out the model from frames 0-1 of every trajectory of DATA and compare.
 
     Translation RMSE (m) and rotation error (mean and RMS, deg) of the dynamic objects after 50
-    steps and at 0.1, 0.2, 0.33, 0.5, 1, 1.67 and 2 seconds, overall and per shape, for the
+    steps and at 0.1, 0.2, 0.33, 0.5, 1, 1.67 and 2 seconds, overall, per shape and per motion
+    (what the recording does with the object up to then: calm, contact or impact), for the
     model and two baselines: objects that keep their last velocity under gravity and stop at
     the floor, and objects that stand still. The json
     also has the errors at every step ("curves") and the model against each baseline on the

@@ -317,6 +317,12 @@ def test_evaluate_reports_model_and_baselines(trained, tmp_path):
         metrics["constant_velocity"]["50_steps"]["all"]["translation_rmse_m"] < 1e-3
     )  # free fall is ballistic
     assert "box" in metrics["model"]["50_steps"]["per_shape"]
+    # the box falls freely the whole time: every horizon's error is the calm objects'
+    motions = metrics["model"]["50_steps"]["per_motion"]
+    assert (
+        list(motions) == ["calm"]
+        and motions["calm"]["objects"] == metrics["model"]["50_steps"]["all"]["objects"]
+    )
     curve = report["curves"]["stand_still"]  # every step k: the box has fallen g((k+1)² − 1)dt²/2
     steps = np.array(curve["step"])
     np.testing.assert_array_equal(steps, np.arange(1, 61))  # to the longest horizon inside 80 frames: 1 s

@@ -7,6 +7,10 @@ physical times 0.1, 0.2, 0.33, 0.5, 1.0, 1.67 and 2 s (so results at different f
 the paper's included, compare only at a matched time); a trajectory too short for a horizon is
 left out of that horizon.
 
+Each horizon's errors are also given per shape and per motion (`per_motion`): what the
+recording does with the object over the horizon (`object_motions`: only free flight and rest,
+or contact, or an impact), with each class's share of the squared translation error.
+
 Beside the metrics: the same errors at every rollout step (`curves`), and the model against
 each baseline on the same objects (`comparison`): the ratio of translation RMSEs and the
 difference of mean rotation errors, each with a 95 % bootstrap interval over trajectories
@@ -33,6 +37,9 @@ PAPER_STEPS = 50
 SECONDS_HORIZONS = (0.1, 0.2, 0.33, 0.5, 1.0, 1.67, 2.0)
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
+MOTIONS = ("calm", "contact", "impact")
+"""`object_motions`' classes, each the worst step of the horizon: calm (every step free fall, or
+at rest or moving steadily), contact (some step changes its motion, none by an impact's), impact."""
 
 
 def translation_errors(predicted, truth):
@@ -111,6 +118,21 @@ def errors_at(scene, positions, quaternions, step):
     return translation, rotation
 
 
+def object_motions(scene, steps, gravity) -> np.ndarray:
+    """(D,) the `MOTIONS` class of each dynamic object of `scene` over a rollout of `steps` from
+    frame 1: the worst of the recording's steps t -> t + 1, t = 1 … steps, as
+    training.object_regimes classes them (an impact: a change of motion beyond gravity's of more
+    than training.IMPACT |g| dt² per frame; calm: free fall or no change, within
+    training.CALM_TOLERANCE); from the recorded velocities, or those estimated from the poses."""
+    from fignetctl.core.model.training import REGIMES, object_regimes
+
+    calm = [REGIMES.index("free fall"), REGIMES.index("at rest or steady")]
+    regimes = np.array([object_regimes(scene, t, gravity) for t in range(1, steps + 1)])
+    motion = np.where(np.isin(regimes, calm).all(0), 0, 1)
+    motion[(regimes == REGIMES.index("impact")).any(0)] = 2
+    return np.asarray(MOTIONS)[motion[~scene.geometry.static]]
+
+
 def summarize_errors(records):
     """records: dicts with 'translation' and 'rotation' arrays -> RMSE (m) and mean angle (deg)."""
     if not records:
@@ -142,11 +164,13 @@ def method_rollouts(simulator, scene, num_steps, gravity, dt, guards=None, guard
     return rollouts
 
 
-def scene_error_records(scene, mesh_names, rollouts, horizons):
-    """(method, horizon, shape) -> list of error records of this scene's dynamic objects;
-    (method, k, "all") with an int k for every step the rollouts cover, for the curves."""
+def scene_error_records(scene, mesh_names, rollouts, horizons, gravity):
+    """(method, horizon, group) -> list of error records of this scene's dynamic objects, group
+    "all", ("per_shape", shape) or ("per_motion", `object_motions` class); (method, k, "all")
+    with an int k for every step the rollouts cover, for the curves."""
     dynamic = ~scene.geometry.static
     shapes = np.asarray(mesh_names)[dynamic]
+    motions = {horizon: object_motions(scene, steps, gravity) for horizon, steps in horizons.items()}
     records = {}
     for method, (positions, quaternions) in rollouts.items():
         per_step = {
@@ -161,10 +185,11 @@ def scene_error_records(scene, mesh_names, rollouts, horizons):
             records.setdefault((method, horizon, "all"), []).append(
                 {"translation": translation, "rotation": rotation}
             )
-            for shape in np.unique(shapes):
-                keep = shapes == shape
-                record = {"translation": translation[keep], "rotation": rotation[keep]}
-                records.setdefault((method, horizon, str(shape)), []).append(record)
+            for group, labels in (("per_shape", shapes), ("per_motion", motions[horizon])):
+                for label in np.unique(labels):
+                    keep = labels == label
+                    record = {"translation": translation[keep], "rotation": rotation[keep]}
+                    records.setdefault((method, horizon, (group, str(label))), []).append(record)
     return records
 
 
@@ -172,7 +197,8 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded
     """Metrics of the model (and the model with the guards `guarded` and the `references`, see
     method_rollouts) and the baselines on scenes of one trajectory file.
 
-    returns {"metrics": {method: {horizon: {"all": metrics, "per_shape": {shape: metrics}}}},
+    returns {"metrics": {method: {horizon: {"all": metrics, "per_shape": {shape: metrics},
+                                            "per_motion": {class: metrics}}}},
              "curves": {method: per-step lists}, "comparison": {baseline: {horizon: compare(...)}}},
     or {} when no scene covers a horizon.
     """
@@ -185,7 +211,7 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded
             simulator, scene, max(horizons.values()), data.gravity, data.dt, guards, guarded, references
         )
         mesh_names = data.trajectories[scene.name].mesh_names
-        for key, records in scene_error_records(scene, mesh_names, rollouts, horizons).items():
+        for key, records in scene_error_records(scene, mesh_names, rollouts, horizons, data.gravity).items():
             all_records.setdefault(key, []).extend(records)
         if on_scene is not None:
             on_scene(scene)
@@ -211,14 +237,22 @@ def evaluate_scenes(simulator, data, scenes, on_scene=None, guards=None, guarded
 
 
 def nest_metrics(all_records):
-    """{(method, horizon, shape): records} -> nested metrics dict."""
+    """{(method, horizon, group): records} -> nested metrics dict (`scene_error_records`' groups);
+    each per-motion entry also has its share of the horizon's squared translation error."""
     result = {}
-    for (method, horizon, shape), records in sorted(all_records.items()):
-        entry = result.setdefault(method, {}).setdefault(horizon, {"all": None, "per_shape": {}})
-        if shape == "all":
+    for (method, horizon, group), records in sorted(all_records.items(), key=lambda item: str(item[0])):
+        entry = result.setdefault(method, {}).setdefault(
+            horizon, {"all": None, "per_shape": {}, "per_motion": {}}
+        )
+        if group == "all":
             entry["all"] = summarize_errors(records)
         else:
-            entry["per_shape"][shape] = summarize_errors(records)
+            entry[group[0]][group[1]] = summarize_errors(records)
+    for entry in (entry for horizons in result.values() for entry in horizons.values()):
+        total = entry["all"]["objects"] * entry["all"]["translation_rmse_m"] ** 2
+        for metrics in entry["per_motion"].values():
+            squared = metrics["objects"] * metrics["translation_rmse_m"] ** 2
+            metrics["share_of_squared_translation_error"] = float(squared / total) if total > 0 else None
     return result
 
 

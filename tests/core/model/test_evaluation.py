@@ -67,3 +67,93 @@ def test_unpaired_records_are_refused():
     rng = np.random.default_rng(4)
     with pytest.raises(ValueError, match="same trajectories"):
         compare(records(rng, [2, 3]), records(rng, [2]))
+
+
+GRAVITY = (0.0, 0.0, -10.0)
+
+
+def _box_scene(bounce_speed=None, impact=6, frames=12, spin=3.0):
+    """box_drop_file's box, falling (and spinning) freely; with `bounce_speed`, it comes down at
+    that speed instead and bounces back up at frame `impact` with no spin."""
+    import dataclasses
+
+    from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
+    from fignetctl.core.model.training import simulator_config_for
+    from tests.conftest import box_drop_file
+
+    data = box_drop_file(frames=frames, spin=spin if bounce_speed is None else 0.0, height=2.0)
+    if bounce_speed is not None:
+        times = np.arange(frames) * data.dt
+        trajectory = data.trajectories["00000"]
+        positions = np.array(trajectory.positions)
+        distance = bounce_speed * data.dt * np.abs(np.arange(frames) - impact)
+        positions[:, 1, 2] = 2.0 + distance - 5.0 * times**2
+        velocities = np.zeros((frames, 2, 3), np.float32)
+        velocities[:, 1, 2] = np.where(np.arange(frames) < impact, -bounce_speed, bounce_speed) - 10.0 * times
+        trajectory = dataclasses.replace(trajectory, positions=positions, velocities=velocities)
+        data = dataclasses.replace(data, trajectories={"00000": trajectory})
+    config = dataclasses.replace(
+        simulator_config_for("fignet-star", "tiny", 0.1, state="velocities"), gravity=GRAVITY, dt=data.dt
+    )
+    (scene,) = scenes_from_data(data, config, TRAINING_STATIC_REACH)
+    return scene, data
+
+
+@pytest.mark.parametrize(
+    "bounce_speed, steps, motion",
+    [
+        (None, 10, "calm"),  # free fall with spin, every step
+        (3.0, 4, "calm"),  # the bounce (frame 5 -> 6) is past the horizon
+        (3.0, 5, "impact"),  # 6 m/s in a frame of 1/60 s: 36 g beyond gravity
+        (0.3, 8, "contact"),  # 0.6 m/s in a frame: 3.6 g, a change but not an impact
+    ],
+)
+def test_object_motions_is_the_worst_step_within_the_horizon(bounce_speed, steps, motion):
+    from fignetctl.core.model.evaluation import object_motions
+
+    scene, _ = _box_scene(bounce_speed)
+    assert list(object_motions(scene, steps, GRAVITY)) == [motion]  # the box; the floor is static
+
+
+def test_a_box_at_rest_is_calm():
+    import dataclasses
+
+    from fignetctl.core.model.evaluation import object_motions
+
+    scene, _ = _box_scene()
+    resting = dataclasses.replace(
+        scene,
+        positions=np.repeat(scene.positions[:1], len(scene.positions), 0),
+        quaternions=np.repeat(scene.quaternions[:1], len(scene.quaternions), 0),
+        velocities=np.zeros_like(scene.velocities),
+        angular_velocities=np.zeros_like(scene.angular_velocities),
+    )
+    assert list(object_motions(resting, 10, GRAVITY)) == ["calm"]
+
+
+def test_per_motion_metrics_pool_each_class_and_share_the_squared_error():
+    from fignetctl.core.model.evaluation import nest_metrics, scene_error_records
+
+    all_records = {}
+    for offset, bounce_speed in ((0.1, None), (0.3, 3.0), (0.2, 0.3)):
+        scene, data = _box_scene(bounce_speed)
+        shifted = (scene.positions + offset * np.array([1.0, 0.0, 0.0]), scene.quaternions)
+        rollouts = {"model": shifted, "truth": (scene.positions, scene.quaternions)}
+        horizons = {"short": 4, "long": 8}
+        mesh_names = data.trajectories["00000"].mesh_names
+        for key, records in scene_error_records(scene, mesh_names, rollouts, horizons, GRAVITY).items():
+            all_records.setdefault(key, []).extend(records)
+    metrics = nest_metrics({key: value for key, value in all_records.items() if isinstance(key[1], str)})
+    long, short = metrics["model"]["long"], metrics["model"]["short"]
+    assert set(long["per_motion"]) == {"calm", "contact", "impact"}
+    for motion, offset in (("calm", 0.1), ("impact", 0.3), ("contact", 0.2)):
+        assert long["per_motion"][motion]["translation_rmse_m"] == pytest.approx(offset, rel=1e-5)
+        assert long["per_motion"][motion]["share_of_squared_translation_error"] == pytest.approx(
+            offset**2 / (0.1**2 + 0.3**2 + 0.2**2), rel=1e-5
+        )
+    # within 4 steps no box has met the floor yet: all three are calm, the whole error theirs
+    assert set(short["per_motion"]) == {"calm"} and short["per_motion"]["calm"]["objects"] == 3
+    assert short["per_motion"]["calm"]["share_of_squared_translation_error"] == pytest.approx(1.0)
+    assert long["per_shape"]["box"]["objects"] == 3 and long["all"]["objects"] == 3
+    # a method without error has no share to give
+    assert metrics["truth"]["long"]["per_motion"]["calm"]["share_of_squared_translation_error"] is None

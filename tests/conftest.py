@@ -69,6 +69,22 @@ def box_drop_file(frames=3, dt=1 / 60, spin=3.0, height=2.0):
     )
 
 
+def bouncing_box_file(frames=12, impact=6, speed=3.0):
+    """box_drop_file's box without spin, coming down at `speed` m/s and bouncing back up at
+    `speed` at frame `impact`, each way in free fall; poses and recorded velocities agree."""
+    import dataclasses
+
+    data = box_drop_file(frames=frames, spin=0.0, height=2.0)
+    times = np.arange(frames) * data.dt
+    trajectory = data.trajectories["00000"]
+    positions = np.array(trajectory.positions)
+    positions[:, 1, 2] = 2.0 + speed * data.dt * np.abs(np.arange(frames) - impact) - 5.0 * times**2
+    velocities = np.zeros((frames, 2, 3), np.float32)
+    velocities[:, 1, 2] = np.where(np.arange(frames) < impact, -speed, speed) - 10.0 * times
+    trajectory = dataclasses.replace(trajectory, positions=positions, velocities=velocities)
+    return dataclasses.replace(data, trajectories={"00000": trajectory})
+
+
 @pytest.fixture
 def box_drop():
     return box_drop_file()

@@ -21,7 +21,7 @@ from fignetctl.core.model.training import (
     simulator_config_for,
 )
 from fignetctl.core.trajectory import write_trajectories
-from tests.conftest import box_drop_file
+from tests.conftest import bouncing_box_file, box_drop_file
 
 GRAVITY = (0.0, 0.0, -10.0)
 VELOCITIES = dataclasses.replace(
@@ -42,18 +42,6 @@ def _edited(data, **arrays):
     return dataclasses.replace(data, trajectories={"00000": dataclasses.replace(trajectory, **arrays)})
 
 
-def _bouncing_box(frames=12, impact=6, speed=3.0):
-    """The box comes down at `speed` m/s, bounces at frame `impact` and goes up at `speed`,
-    each way in free fall; poses and recorded velocities agree; no spin."""
-    data = box_drop_file(frames=frames, spin=0.0, height=2.0)
-    times = np.arange(frames) * data.dt
-    positions = np.array(data.trajectories["00000"].positions)
-    positions[:, 1, 2] = 2.0 + speed * data.dt * np.abs(np.arange(frames) - impact) - 5.0 * times**2
-    velocities = np.zeros((frames, 2, 3), np.float32)
-    velocities[:, 1, 2] = np.where(np.arange(frames) < impact, -speed, speed) - 10.0 * times
-    return _edited(data, positions=positions, velocities=velocities)
-
-
 @pytest.mark.parametrize("config", [VELOCITIES, POSITIONS], ids=["velocities", "positions"])
 def test_a_spinning_box_in_free_fall_is_calm_in_every_frame(config):
     scene = _scene(box_drop_file(frames=10, spin=3.0, height=2.0), config)
@@ -70,7 +58,7 @@ def test_a_box_at_rest_is_calm_and_its_bounce_is_not(config):
     resting = _edited(data, positions=positions, velocities=np.zeros((10, 2, 3), np.float32))
     velocity_state = config.uses_velocities
     assert all(calm_vertices(_scene(resting, config), t, GRAVITY, velocity_state).all() for t in range(1, 9))
-    bouncing = _scene(_bouncing_box(impact=6), config)
+    bouncing = _scene(bouncing_box_file(impact=6), config)
     # the velocity state's target spans t -> t + 1 (the flip is from frame 5 to 6); a two-frame
     # model's spans t - 1 -> t + 1, so frame 6 changes its motion as well
     bounce = {5} if velocity_state else {6}
@@ -93,7 +81,7 @@ def test_a_change_of_spin_just_past_the_tolerance_is_not_calm():
 
 def test_training_batches_weigh_calm_rows_and_leave_the_draws_alone(tmp_path):
     data = box_drop_file(frames=12, spin=0.0, height=2.0)
-    scenes = scenes_from_data(_bouncing_box(), VELOCITIES, TRAINING_STATIC_REACH) + scenes_from_data(
+    scenes = scenes_from_data(bouncing_box_file(), VELOCITIES, TRAINING_STATIC_REACH) + scenes_from_data(
         data, VELOCITIES, TRAINING_STATIC_REACH
     )
     plain = TrainingSettings(batch_size=6, seed=3)
@@ -113,7 +101,7 @@ def test_training_batches_weigh_calm_rows_and_leave_the_draws_alone(tmp_path):
 
 
 def test_a_calm_weighted_run_trains_and_resumes_with_its_weight(tmp_path):
-    path = write_trajectories(tmp_path / "bounce.h5", _bouncing_box())
+    path = write_trajectories(tmp_path / "bounce.h5", bouncing_box_file())
     config = TrainingSettings(steps=6, batch_size=3, pushforward=1, calm_weight=10.0, checkpoint_every=3)
     config = dataclasses.replace(config, normalizer_accumulation_steps=2)
     straight = make_trainer(path, VELOCITIES, config)
@@ -128,7 +116,7 @@ def test_a_calm_weighted_run_trains_and_resumes_with_its_weight(tmp_path):
 
 
 def test_object_regimes_of_a_bounce_and_of_a_rest():
-    bouncing = _scene(_bouncing_box(impact=6))
+    bouncing = _scene(bouncing_box_file(impact=6))
     assert object_regimes(bouncing, 5, GRAVITY)[1] == REGIMES.index("impact")
     for frame in (1, 4, 6, 10):
         assert object_regimes(bouncing, frame, GRAVITY)[1] == REGIMES.index("free fall"), frame
@@ -155,7 +143,7 @@ class _SinkingTwoFrameModel:
 
 
 def test_regime_errors_of_a_model_that_sinks_one_millimetre_a_frame():
-    scenes = scenes_from_data(_bouncing_box(impact=6), POSITIONS, TRAINING_STATIC_REACH)
+    scenes = scenes_from_data(bouncing_box_file(impact=6), POSITIONS, TRAINING_STATIC_REACH)
     regimes = regime_errors(_SinkingTwoFrameModel(), scenes)
     free, impact = regimes["free fall"], regimes["impact"]
     # frames t = 1 … 10; a two-frame model's target spans t − 1 → t + 1: the bounce is t = 6 alone
@@ -174,7 +162,7 @@ def test_regime_errors_say_which_errors_lie_out_of_the_collision_radius():
     # the unit box's underside is 1.45 m above the floor at the bounce (t = 6) and 1.48 m or
     # more at every other frame: a radius of 1.47 m reaches the floor at the bounce alone
     # (the floor kept within 10 m of the box, not training's 1 m)
-    scenes = scenes_from_data(_bouncing_box(impact=6), POSITIONS, static_reach=10.0)
+    scenes = scenes_from_data(bouncing_box_file(impact=6), POSITIONS, static_reach=10.0)
     regimes = regime_errors(_SinkingTwoFrameModel(), scenes, radii=(0.1, 1.47, 5.0))
     free, impact = regimes["free fall"]["out_of_reach"], regimes["impact"]["out_of_reach"]
     assert [free[r]["share"] for r in ("0.1", "1.47", "5")] == [1.0, 1.0, 0.0]
@@ -208,7 +196,7 @@ class _ShrunkResponseModel:
 
 
 def test_the_response_says_how_much_of_each_change_of_motion_a_model_follows():
-    data = _bouncing_box(impact=6)
+    data = bouncing_box_file(impact=6)
     angular = np.zeros((12, 2, 3), np.float32)
     angular[6:, 1, 0] = 2.0  # the bounce (frame 5 -> 6) also sets it spinning
     scene = _scene(_edited(data, angular_velocities=angular))
@@ -248,7 +236,7 @@ def test_rest_weight_weighs_resting_rows_on_top_of_the_calm_weight():
     positions = np.array(data.trajectories["00000"].positions)
     positions[:, 1] = positions[0, 1]
     resting = _scene(_edited(data, positions=positions, velocities=np.zeros((12, 2, 3), np.float32)))
-    bouncing = _scene(_bouncing_box(impact=6))
+    bouncing = _scene(bouncing_box_file(impact=6))
     rest = TrainingSettings(rest_weight=100.0)
     both = dataclasses.replace(rest, calm_weight=4.0)
     for frame in range(1, 10):

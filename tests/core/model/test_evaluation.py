@@ -72,26 +72,19 @@ def test_unpaired_records_are_refused():
 GRAVITY = (0.0, 0.0, -10.0)
 
 
-def _box_scene(bounce_speed=None, impact=6, frames=12, spin=3.0):
-    """box_drop_file's box, falling (and spinning) freely; with `bounce_speed`, it comes down at
-    that speed instead and bounces back up at frame `impact` with no spin."""
+def _box_scene(bounce_speed=None):
+    """box_drop_file's box falling freely and spinning, or with `bounce_speed`
+    bouncing_box_file's box bouncing at that speed at frame 6; its scene and its file."""
     import dataclasses
 
     from fignetctl.core.model.scene_data import TRAINING_STATIC_REACH, scenes_from_data
     from fignetctl.core.model.training import simulator_config_for
-    from tests.conftest import box_drop_file
+    from tests.conftest import bouncing_box_file, box_drop_file
 
-    data = box_drop_file(frames=frames, spin=spin if bounce_speed is None else 0.0, height=2.0)
-    if bounce_speed is not None:
-        times = np.arange(frames) * data.dt
-        trajectory = data.trajectories["00000"]
-        positions = np.array(trajectory.positions)
-        distance = bounce_speed * data.dt * np.abs(np.arange(frames) - impact)
-        positions[:, 1, 2] = 2.0 + distance - 5.0 * times**2
-        velocities = np.zeros((frames, 2, 3), np.float32)
-        velocities[:, 1, 2] = np.where(np.arange(frames) < impact, -bounce_speed, bounce_speed) - 10.0 * times
-        trajectory = dataclasses.replace(trajectory, positions=positions, velocities=velocities)
-        data = dataclasses.replace(data, trajectories={"00000": trajectory})
+    if bounce_speed is None:
+        data = box_drop_file(frames=12, spin=3.0, height=2.0)
+    else:
+        data = bouncing_box_file(frames=12, impact=6, speed=bounce_speed)
     config = dataclasses.replace(
         simulator_config_for("fignet-star", "tiny", 0.1, state="velocities"), gravity=GRAVITY, dt=data.dt
     )

@@ -118,19 +118,29 @@ def errors_at(scene, positions, quaternions, step):
     return translation, rotation
 
 
-def object_motions(scene, steps, gravity) -> np.ndarray:
-    """(D,) the `MOTIONS` class of each dynamic object of `scene` over a rollout of `steps` from
-    frame 1: the worst of the recording's steps t -> t + 1, t = 1 … steps, as
-    training.object_regimes classes them (an impact: a change of motion beyond gravity's of more
-    than training.IMPACT |g| dt² per frame; calm: free fall or no change, within
-    training.CALM_TOLERANCE); from the recorded velocities, or those estimated from the poses."""
+def object_motions(scene, horizons, gravity) -> dict:
+    """{horizon: (D,) the `MOTIONS` class of each dynamic object of `scene`} for `horizons`
+    ({name: steps}) of a rollout from frame 1: the worst of the recording's steps t -> t + 1,
+    t = 1 … steps, as training.object_regimes classes them (an impact: a change of motion beyond
+    gravity's of more than training.IMPACT |g| dt² per frame; calm: free fall or no change,
+    within training.CALM_TOLERANCE); from the recorded velocities, or those estimated from the
+    poses. The steps are classed once, up to the longest horizon."""
     from fignetctl.core.model.training import REGIMES, object_regimes
 
-    calm = [REGIMES.index("free fall"), REGIMES.index("at rest or steady")]
-    regimes = np.array([object_regimes(scene, t, gravity) for t in range(1, steps + 1)])
-    motion = np.where(np.isin(regimes, calm).all(0), 0, 1)
-    motion[(regimes == REGIMES.index("impact")).any(0)] = 2
-    return np.asarray(MOTIONS)[motion[~scene.geometry.static]]
+    if not horizons:
+        return {}
+    dynamic = ~scene.geometry.static
+    steps = range(1, max(horizons.values()) + 1)
+    regimes = np.array([object_regimes(scene, t, gravity)[dynamic] for t in steps])
+    calm = np.isin(regimes, [REGIMES.index("free fall"), REGIMES.index("at rest or steady")])
+    calm_so_far = np.logical_and.accumulate(calm, axis=0)  # [k]: calm over steps 1 … k + 1
+    impact_so_far = np.logical_or.accumulate(regimes == REGIMES.index("impact"), axis=0)
+    motions = {}
+    for horizon, count in horizons.items():
+        motion = np.where(calm_so_far[count - 1], 0, 1)
+        motion[impact_so_far[count - 1]] = 2
+        motions[horizon] = np.asarray(MOTIONS)[motion]
+    return motions
 
 
 def summarize_errors(records):
@@ -170,7 +180,7 @@ def scene_error_records(scene, mesh_names, rollouts, horizons, gravity):
     with an int k for every step the rollouts cover, for the curves."""
     dynamic = ~scene.geometry.static
     shapes = np.asarray(mesh_names)[dynamic]
-    motions = {horizon: object_motions(scene, steps, gravity) for horizon, steps in horizons.items()}
+    motions = object_motions(scene, horizons, gravity)
     records = {}
     for method, (positions, quaternions) in rollouts.items():
         per_step = {

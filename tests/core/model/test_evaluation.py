@@ -105,7 +105,8 @@ def test_object_motions_is_the_worst_step_within_the_horizon(bounce_speed, steps
     from fignetctl.core.model.evaluation import object_motions
 
     scene, _ = _box_scene(bounce_speed)
-    assert list(object_motions(scene, steps, GRAVITY)) == [motion]  # the box; the floor is static
+    motions = object_motions(scene, {"horizon": steps, "longest": 10}, GRAVITY)
+    assert list(motions["horizon"]) == [motion]  # the box; the floor is static
 
 
 def test_a_box_at_rest_is_calm():
@@ -121,7 +122,7 @@ def test_a_box_at_rest_is_calm():
         velocities=np.zeros_like(scene.velocities),
         angular_velocities=np.zeros_like(scene.angular_velocities),
     )
-    assert list(object_motions(resting, 10, GRAVITY)) == ["calm"]
+    assert list(object_motions(resting, {"1 s": 10}, GRAVITY)["1 s"]) == ["calm"]
 
 
 def test_per_motion_metrics_pool_each_class_and_share_the_squared_error():

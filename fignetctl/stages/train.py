@@ -131,6 +131,21 @@ class Settings:
         "Loss on the normalized accelerations; huber weighs rare contact spikes less.",
         choices=("mse", "huber"),
     )
+    unroll: int = setting(
+        1,
+        "Steps the loss follows the model through: 1, or 2 (its answer for the next frame is also "
+        "the start of a second step, scored too; velocity state; docs/training-record.md).",
+        low=1,
+        high=2,
+    )
+    velocity_weight: float = setting(
+        1.0,
+        "Loss weight of the velocity columns against the position columns (velocity state): an "
+        "error in the next velocity moves every later frame of a rollout (docs/training-record.md).",
+        low=0,
+        low_open=True,
+        high=1e6,
+    )
     calm_weight: float = setting(
         0.0,
         "Extra loss weight of the vertices the recording has in free fall or at rest (their loss "
@@ -236,6 +251,8 @@ def configs(settings: Settings, device: str = "cpu"):
         learning_rate_initial=settings.learning_rate[0],
         learning_rate_final=settings.learning_rate[1],
         loss=settings.loss,
+        velocity_weight=settings.velocity_weight,
+        unroll=settings.unroll,
         pushforward=settings.pushforward,
         pushforward_model=settings.pushforward_model or "",
         frame_sampling=settings.frame_sampling,

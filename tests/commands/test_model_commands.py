@@ -215,6 +215,10 @@ def test_train_stops_at_its_time_limit_with_exit_75_and_resume_finishes(tmp_path
         "30",
         "--undo-position-noise",
         "0.3",
+        "--velocity-weight",
+        "4",
+        "--unroll",
+        "2",
     ]
     stopped = CliRunner().invoke(cli, [*args, "--time-limit", "1e-9"])
     assert stopped.exit_code == 75, stopped.output
@@ -225,7 +229,12 @@ def test_train_stops_at_its_time_limit_with_exit_75_and_resume_finishes(tmp_path
     state = torch.load(model, weights_only=True)["training_state"]
     stored = json.loads(state["training_config"])
     assert state["step"] == 3 and stored["frame_sampling"] == "motion" and stored["calm_weight"] == 2
-    assert stored["rest_weight"] == 30 and stored["position_noise_undone"] == 0.3
+    assert (
+        stored["rest_weight"] == 30
+        and stored["position_noise_undone"] == 0.3
+        and stored["velocity_weight"] == 4
+    )
+    assert stored["unroll"] == 2
     refused = CliRunner().invoke(cli, [*args, "--time-limit", "0"])
     assert refused.exit_code == 2 and "--time-limit" in refused.output
 

@@ -797,6 +797,12 @@ def point_motion(triangles, points, vertex_motion):
     """(E, 3, 3) triangles, (E, 3) points on them, (E, 3, 3) their vertices' motion -> (E, 3)
     each point's motion, interpolated barycentrically (exact for a rigid or affine motion); a
     degenerate triangle gives its nearest vertex's."""
+    return np.einsum("ek,ekd->ed", barycentric_weights(triangles, points), vertex_motion)
+
+
+def barycentric_weights(triangles, points):
+    """(E, 3, 3) triangles, (E, 3) points on them -> (E, 3) barycentric coordinates (clipped to
+    the triangle; a degenerate triangle's nearest vertex gets all the weight)."""
     a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
     e1, e2, p = b - a, c - a, points - a
     d11, d12, d22 = (np.sum(u * v, axis=1) for u, v in ((e1, e1), (e1, e2), (e2, e2)))
@@ -810,7 +816,7 @@ def point_motion(triangles, points, vertex_motion):
     weights /= np.maximum(weights.sum(axis=1, keepdims=True), 1e-300)
     nearest = np.argmin(np.linalg.norm(triangles - points[:, None], axis=2), axis=1)
     weights[~regular] = np.eye(3)[nearest[~regular]]
-    return np.einsum("ek,ekd->ed", weights, vertex_motion)
+    return weights
 
 
 def canonical_vertex_order(triangles, points):

@@ -53,6 +53,7 @@ from fignetctl.core.model.simulator import (
     free_motion_of,
 )
 from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json
+from fignetctl.core.model.unroll import batch_second_steps, check_unrollable, second_step, second_step_loss
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.core.transforms import quat_conjugate, quat_multiply, quat_to_rotation_vector
@@ -89,6 +90,15 @@ class TrainingSettings:
     `target_keeps_noise` False, whose a = −2v does."""
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
+    unroll: int = 1
+    """Steps the loss follows the simulator through: 1 (the paper's one-step loss), or 2: each
+    example's answer for t+1 is also the state of a second step, scored against t+2, whose
+    gradient reaches the first answer (unroll.py); the loss is the two steps' mean."""
+    velocity_weight: float = 1.0
+    """A velocity state's loss weight of the velocity columns a_u against the position columns
+    a_x (1: equal). An error in u_{t+1} moves every later frame of a rollout, one in x_{t+1}
+    only that one, so after k steps the first weighs about k − 1 times the second; the
+    weights are scaled so the six columns' average stays 1."""
     huber_delta: float = 0.5
     """Where the Huber loss turns from quadratic to linear, in target standard deviations."""
     pushforward: int = 0
@@ -451,8 +461,10 @@ class TrainingBatches(torch.utils.data.Dataset):
         rng = np.random.default_rng([self.config.seed, self.rank, step])
         noise_generator = torch.Generator().manual_seed(int(rng.integers(2**62)))
         examples, weights = [], []
+        draws = []
         for _ in range(self.config.batch_size - self.config.pushforward):  # Trainer adds the others
             scene, frame, weight = self.sampler.draw(rng)
+            draws.append((scene, frame, weight))
             examples.append(
                 training_example(
                     self.simulator_config, self.scenes[scene], frame, noise_generator, self.config
@@ -462,7 +474,15 @@ class TrainingBatches(torch.utils.data.Dataset):
                 weight * row_weights(self.scenes[scene], frame, self.simulator_config, self.config)
             )
         weighted = self.config.frame_sampling != "uniform" or weighs_rows(self.config)
-        batch = batch_of(examples, weights if weighted else None)
+        seconds = None
+        if self.config.unroll == 2:
+            seconds = [
+                second_step_of(
+                    self.simulator_config, self.scenes[scene], frame, example[0], weight, self.config
+                )
+                for (scene, frame, weight), example in zip(draws, examples, strict=True)
+            ]
+        batch = batch_of(examples, weights if weighted else None, seconds)
         if self.pushforward_simulator is not None:  # only with pushforward examples to start
             with torch_threads(1):  # as in a worker: the same sums, so the same batch in any process
                 own = pushforward_examples(
@@ -514,10 +534,11 @@ def row_weights(scene, frame, simulator_config, config: TrainingSettings):
     )
 
 
-def batch_of(examples, weights=None) -> dict:
+def batch_of(examples, weights=None, seconds=None) -> dict:
     """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw
-    targets, and with `weights` (per example, a number or one per dynamic vertex) "weights":
-    each row's loss weight}."""
+    targets, with `weights` (per example, a number or one per dynamic vertex) "weights":
+    each row's loss weight, and with `seconds` (per example, a unroll.SecondStep or None)
+    "second": the batch's SecondStep}."""
     batch = {
         "graph": batch_graphs([e[0].graph for e in examples]),
         "rows": dynamic_rows([e[0] for e in examples]),
@@ -530,7 +551,42 @@ def batch_of(examples, weights=None) -> dict:
                 for e, w in zip(examples, weights, strict=True)
             ]
         )
+    if seconds is not None and any(second is not None for second in seconds):
+        starts = np.cumsum([0] + [len(e[1]) for e in examples[:-1]])
+        kept = [(second, start) for second, start in zip(seconds, starts, strict=True) if second is not None]
+        batch["second"] = batch_second_steps([k[0] for k in kept], [k[1] for k in kept])
     return batch
+
+
+def second_step_of(simulator_config, scene, frame, first_graph, weight, config: TrainingSettings):
+    """The unroll.SecondStep of the example at `frame` (its SceneGraph `first_graph`, its frame
+    sampling weight `weight`): the recording's step from t+1, or None where t+2 is past the end."""
+    if frame + 2 >= scene.positions.shape[0]:
+        return None
+    geometry, after = scene.geometry, frame + 1
+    window = slice(frame, frame + 3)
+    velocities = (scene.velocities[after] * scene.dt, scene.angular_velocities[after] * scene.dt)
+    scene_graph, targets = example_from_state(
+        simulator_config, scene, after, scene.positions[window], scene.quaternions[window], velocities, config
+    )
+    start = np.zeros((len(geometry.dynamic_vertices), 3))
+    if config.target_keeps_noise:
+        recorded_now = geometry.world_vertices(
+            scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
+        )
+        start = (1.0 - config.position_noise_undone) * (
+            first_graph.dynamic_vertex_positions[1] - recorded_now
+        )
+    weights = weight * row_weights(scene, after, simulator_config, config)
+    return second_step(
+        scene_graph,
+        targets.numpy(),
+        geometry,
+        scene.positions[after],
+        start,
+        weights,
+        simulator_config.graph.max_vertex_offset,
+    )
 
 
 def joined(first: dict, second: dict) -> dict:
@@ -644,6 +700,21 @@ class Trainer:
         weights = batch.get("weights")
         weights = None if weights is None else weights.to(self.device)
         loss = regression_loss(predictions.float(), normalized_targets, self.config, weights)
+        if "second" in batch:
+            second = second_step_loss(
+                self.simulator,
+                predictions.float(),
+                batch["targets"].to(self.device),
+                batch["second"].to(self.device),
+                functools.partial(regression_loss, config=self.config),
+                functools.partial(
+                    torch.autocast,
+                    torch.device(self.device).type,
+                    dtype=torch.bfloat16,
+                    enabled=self.config.precision == "bf16",
+                ),
+            )
+            loss = (loss + second) / 2
         self._apply(loss)
         return float(loss.detach())
 
@@ -816,17 +887,28 @@ class HeapTrimmer:
 
 def regression_loss(predictions, targets, config: TrainingSettings, weights=None) -> torch.Tensor:
     """Mean loss over nodes and components of the normalized accelerations, each node's
-    weighted by `weights` (N,) when given."""
+    weighted by `weights` (N,) when given, and a velocity state's columns by `column_weights`."""
     if config.loss == "huber":
-        reduction = "mean" if weights is None else "none"
         loss = torch.nn.functional.huber_loss(
-            predictions, targets, delta=config.huber_delta, reduction=reduction
+            predictions, targets, delta=config.huber_delta, reduction="none"
         )
     elif config.loss == "mse":
         loss = (predictions - targets) ** 2
     else:
         raise FignetError(f"unknown loss {config.loss!r}: choose 'mse' or 'huber'")
-    return torch.mean(loss if weights is None else loss * weights[:, None])
+    if weights is not None:
+        loss = loss * weights[:, None]
+    if config.velocity_weight != 1.0:
+        loss = loss * column_weights(config.velocity_weight, loss.shape[1]).to(loss)
+    return torch.mean(loss)
+
+
+def column_weights(velocity_weight: float, columns: int) -> torch.Tensor:
+    """(columns,) loss weights of [a_x, a_u]: 1 and `velocity_weight`, scaled to average 1."""
+    if columns != 6:
+        raise FignetError("a velocity weight applies to a velocity state's six output columns")
+    weights = torch.tensor([1.0] * 3 + [velocity_weight] * 3)
+    return weights / weights.mean()
 
 
 def dynamic_rows(scene_graphs) -> torch.Tensor:
@@ -898,6 +980,19 @@ def make_trainer(
                 "the added blocks' learning rate scale applies to processor blocks added to a trained "
                 "model: give `init_from` a model of fewer blocks than `message_passing_steps`"
             )
+    if training_config.unroll not in (1, 2):
+        raise FignetError(f"unroll = {training_config.unroll}: the loss follows 1 or 2 steps")
+    if training_config.unroll == 2:
+        check_unrollable(simulator.config)
+        if distributed.world_size() > 1:
+            raise FignetError("a two-step loss runs in one process; train it without torchrun")
+        if training_config.pushforward:
+            raise FignetError(
+                "a two-step loss already starts its second step from the model's own answer; "
+                "train it without pushforward examples"
+            )
+    if training_config.velocity_weight != 1.0 and not simulator.config.uses_velocities:
+        raise FignetError("a velocity weight needs a velocity-state model, whose output has velocity columns")
     if simulator.config.uses_velocities and not all(t.has_velocities for t in data.trajectories.values()):
         raise FignetError(
             f"{dataset_path}: has no recorded velocities (a format version 1 file), which a velocity-state "

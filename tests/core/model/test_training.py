@@ -437,6 +437,35 @@ def test_huber_loss_is_quadratic_near_zero_and_linear_for_spikes():
         regression_loss(small, zero, TrainingSettings(loss="l1"))
 
 
+def test_velocity_weight_weighs_the_velocity_columns_against_the_position_columns():
+    from fignetctl.core.model.training import regression_loss
+
+    zero = torch.zeros(5, 6)
+    position_error, velocity_error = zero.clone(), zero.clone()
+    position_error[:, :3], velocity_error[:, 3:] = 2.0, 2.0  # squared: 4 on half the columns
+    for loss in ("mse", "huber"):
+        plain = regression_loss(position_error, zero, TrainingSettings(loss=loss)).item()
+        assert regression_loss(velocity_error, zero, TrainingSettings(loss=loss)).item() == pytest.approx(
+            plain
+        )
+        weighted = TrainingSettings(loss=loss, velocity_weight=9.0)  # columns weigh 0.2 and 1.8
+        assert regression_loss(position_error, zero, weighted).item() == pytest.approx(0.2 * plain)
+        assert regression_loss(velocity_error, zero, weighted).item() == pytest.approx(1.8 * plain)
+    rows = torch.tensor([0.0, 1.0, 2.0, 0.0, 1.0])  # row weights multiply with the column weights
+    both = regression_loss(velocity_error, zero, TrainingSettings(velocity_weight=9.0), rows).item()
+    assert both == pytest.approx(1.8 * 2.0 * float(rows.mean()))
+    with pytest.raises(FignetError, match="six output columns"):
+        regression_loss(torch.ones(5, 3), torch.zeros(5, 3), TrainingSettings(velocity_weight=9.0))
+
+
+def test_a_velocity_weight_is_refused_for_a_positions_state_model(box_file):
+    from fignetctl.core.model.training import make_trainer
+
+    config = dataclasses.replace(TINY, state="positions")
+    with pytest.raises(FignetError, match="velocity-state model"):
+        make_trainer(box_file, config, TrainingSettings(steps=1, velocity_weight=4.0))
+
+
 def test_tiny_model_overfits_with_the_huber_loss(box_file):
     trainer = make_trainer(
         box_file,

@@ -38,12 +38,16 @@ def evaluate(data, model_path, output, overwrite, **settings):
     evaluate what `rollout` does by default. --ceilings adds PyBullet restarted every frame
     from the model's inputs: the pose and instantaneous velocity (ceiling_velocity) or two
     frames (ceiling_finite_difference), the best any model given that state could do.
+    --against MODEL rolls out a second model on the same trajectories, so that "comparison"
+    holds the model against it with intervals paired by trajectory (a new model against the
+    one it would replace).
 
     \b
     Example:
       fignetctl make-dataset --preset movi-b --split test -n 20 --seed 99 -o test.h5
       fignetctl evaluate test.h5 -o metrics.json
       fignetctl evaluate test.h5 --with-guards --ceilings -o metrics.json
+      fignetctl evaluate test.h5 --model new.pt --against fignet-star-movi-b -o new.json
     """
     path = options.output_path(output, overwrite) if output else None
     metrics = stage.run(

@@ -31,6 +31,12 @@ class Settings:
     ceilings: bool = setting(
         False, "Also evaluate PyBullet restarted every frame from a model's inputs (make-dataset DATA only)."
     )
+    against: str | None = setting(
+        None,
+        "Also roll out this model file (or bundled model name), with its own turns and meshes, and "
+        "compare the model with it trajectory by trajectory (comparison.against).",
+        metavar="MODEL",
+    )
     rotations: int | None = rotations_setting()
     max_faces: int | None = max_faces_setting()
     device: str = device_setting()
@@ -47,7 +53,9 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
     from fignetctl.core.trajectory import read_trajectories
 
     check(settings)
-    simulator = load_model(model, resolve_device(settings.device), settings.rotations, settings.max_faces)
+    device = resolve_device(settings.device)
+    simulator = load_model(model, device, settings.rotations, settings.max_faces)
+    against = None if settings.against is None else load_model(settings.against, device)
     trajectories = read_trajectories(data)
     total = len(list(trajectories.trajectories)[: settings.max_trajectories])
     with (progress or no_progress)(total=total, unit="trajectory", desc="evaluate") as bar:
@@ -62,11 +70,15 @@ def run(data, output=None, settings: Settings = Settings(), model=None, progress
             with_guards=settings.with_guards,
             ceilings=settings.ceilings,
             where=str(data),
+            against=against,
         )
     metrics = {"data": str(data), **metrics}
     metrics["model"] = str(model or "fignet-star-movi-b")
     metrics.update(stamp(data=data))
     metrics[INPUTS_KEY]["model"] = simulator.source_sha256
+    if against is not None:
+        metrics["against"] = settings.against
+        metrics[INPUTS_KEY]["against"] = against.source_sha256
     if output is not None:
         from fignetctl.core.atomic import write_json
 

@@ -383,6 +383,33 @@ def test_max_faces_decimates_the_meshes_the_model_reads_and_is_recorded(trained,
         assert "Traceback" not in result.output and not (tmp_path / "x").exists()
 
 
+def test_evaluate_against_another_model_pairs_the_trajectories(trained, tmp_path):
+    """Against itself the ratio is 1 with no spread; against itself on its file's meshes while
+    the model reads coarser ones, the two differ; a missing model is a clear error."""
+    _, data, model = trained
+    out = tmp_path / "metrics.json"
+    args = ["evaluate", str(data), "--model", str(model), "--against", str(model), "-o", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    report = json.loads(out.read_text())
+    assert report["metrics"]["against"] == report["metrics"]["model"]
+    paired = report["comparison"]["against"]["50_steps"]
+    assert paired["translation_rmse_ratio"] == 1.0 and paired["translation_rmse_ratio_95"] == [1.0, 1.0]
+    assert paired["rotation_error_difference_deg"] == 0.0
+    assert report["against"] == str(model) and read_provenance(out)["inputs_sha256"][
+        "against"
+    ] == file_sha256(model)
+    coarser = CliRunner().invoke(cli, [*args, "--max-faces", "6", "--overwrite"])
+    assert coarser.exit_code == 0, coarser.output
+    paired = json.loads(out.read_text())["comparison"]["against"]["50_steps"]
+    assert paired["translation_rmse_ratio"] != 1.0
+    missing = CliRunner().invoke(
+        cli, [*args[:-2], "--against", str(tmp_path / "none.pt"), "-o", str(tmp_path / "x.json")]
+    )
+    assert missing.exit_code != 0 and "none.pt" in missing.output and "Traceback" not in missing.output
+    assert not (tmp_path / "x.json").exists()
+
+
 def test_evaluate_ceilings_need_a_make_dataset_file(trained, tmp_path):
     _, data, model = trained  # written by the tests, not by make-dataset: no generator config
     out = tmp_path / "metrics.json"

@@ -188,36 +188,30 @@ def evaluate_trajectories(
     with_guards=False,
     ceilings=False,
     where="data",
+    against=None,
 ) -> dict:
     """Metrics (evaluation.evaluate_scenes) of a model on the trajectories of `data` (`where`
     names it in messages);
     `with_guards` also evaluates it as `rollout` runs it (free flight, keep-out, sleeping);
     `ceilings` also evaluates PyBullet restarted every frame from each state (core/ceilings.py;
-    the file must come from make-dataset)."""
-    from fignetctl.core.model import froude
+    the file must come from make-dataset); `against`, another simulator, is rolled out on the
+    same trajectories with the same guards as method "against", so that the comparison holds
+    the model against it, trajectory by trajectory."""
     from fignetctl.core.model.evaluation import evaluate_scenes
 
     keys = list(data.trajectories)[:max_trajectories]
-    if simulator.config.dt is not None and not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
-        raise FignetError(
-            f"{where}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
-            "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step"
-        )
-    if froude.gravity_ratio(data.gravity, simulator.config.gravity, where) != 1.0:
-        raise FignetError(
-            f"{where}: its gravity is {np.linalg.norm(data.gravity):.4g} m/s², the model learned "
-            f"{np.linalg.norm(simulator.config.gravity):.4g} m/s², so its rollouts cannot be compared with them "
-            "frame by frame; evaluate on data under the model's gravity (`rollout` maps a scene to it)"
-        )
+    for model in (simulator,) if against is None else (simulator, against):
+        check_comparable(model, data, where)
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
-    cache = {}
-    scenes = [
-        scene_from_trajectory(data, key, simulator.config, cache, EVALUATION_STATIC_REACH) for key in keys
-    ]
+    scenes = list(_scenes_of(data, keys, simulator.config).values())
     guards = guards_for(data.dt, data.gravity, sleep, free_flight, keep_out)
     guarded = guards_for(data.dt, data.gravity, True, True, True) if with_guards else None
     with contextlib.ExitStack() as stack:
-        references = physics_ceilings(data, stack) if ceilings else None
+        references = physics_ceilings(data, stack) if ceilings else {}
+        if against is not None:
+            references["against"] = functools.partial(
+                _model_rollout, against, _scenes_of(data, keys, against.config), guards
+            )
         results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded, references)
     if not results:
         raise FignetError(f"{where}: no trajectory is long enough for a 50-step or 2-second horizon")
@@ -232,6 +226,33 @@ def evaluate_trajectories(
         "max_faces": simulator.config.max_faces_per_object,
         **results,
     }
+
+
+def check_comparable(simulator, data, where) -> None:
+    """Refuse a model whose time step or gravity differ from the file's."""
+    from fignetctl.core.model import froude
+
+    if simulator.config.dt is not None and not np.isclose(simulator.config.dt, data.dt, rtol=1e-3):
+        raise FignetError(
+            f"{where}: its frames are {data.dt:.6g} s apart, the model steps {simulator.config.dt:.6g} s, "
+            "so its rollouts cannot be compared with them frame by frame; evaluate on data at the model's time step"
+        )
+    if froude.gravity_ratio(data.gravity, simulator.config.gravity, where) != 1.0:
+        raise FignetError(
+            f"{where}: its gravity is {np.linalg.norm(data.gravity):.4g} m/s², the model learned "
+            f"{np.linalg.norm(simulator.config.gravity):.4g} m/s², so its rollouts cannot be compared with them "
+            "frame by frame; evaluate on data under the model's gravity (`rollout` maps a scene to it)"
+        )
+
+
+def _scenes_of(data, keys, config) -> dict:
+    """name -> Scene of each trajectory as a model of `config` reads it (its meshes' faces)."""
+    cache = {}
+    return {key: scene_from_trajectory(data, key, config, cache, EVALUATION_STATIC_REACH) for key in keys}
+
+
+def _model_rollout(simulator, scenes, guards, scene, num_steps):
+    return rollout(simulator, scenes[scene.name], num_steps, guards=guards)
 
 
 def physics_ceilings(data, stack: contextlib.ExitStack) -> dict:

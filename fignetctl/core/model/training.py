@@ -4,7 +4,8 @@ Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
 regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss (with
 `pushforward`, that many of them take frame t from the simulator's own prediction instead, or
-from a fixed model's with `pushforward_model`; with
+from a fixed model's with `pushforward_model`; with `unroll` 2, each example's answer also
+starts a second step that is scored too, unroll.py; with
 `frame_sampling` 'motion', impact frames are drawn more often and weighted less).
 Adam with a learning rate decaying exponentially from `learning_rate_initial` to
 `learning_rate_final`.
@@ -693,9 +694,13 @@ class Trainer:
             )
         graph = batch["graph"].to(self.device)
         normalized_targets = self.simulator.normalized_targets(batch["targets"].to(self.device), accumulate)
-        with torch.autocast(
-            torch.device(self.device).type, dtype=torch.bfloat16, enabled=self.config.precision == "bf16"
-        ):
+        autocast = functools.partial(
+            torch.autocast,
+            torch.device(self.device).type,
+            dtype=torch.bfloat16,
+            enabled=self.config.precision == "bf16",
+        )
+        with autocast():
             predictions = self.model(graph, accumulate)[batch["rows"].to(self.device)]
         weights = batch.get("weights")
         weights = None if weights is None else weights.to(self.device)
@@ -707,12 +712,7 @@ class Trainer:
                 batch["targets"].to(self.device),
                 batch["second"].to(self.device),
                 functools.partial(regression_loss, config=self.config),
-                functools.partial(
-                    torch.autocast,
-                    torch.device(self.device).type,
-                    dtype=torch.bfloat16,
-                    enabled=self.config.precision == "bf16",
-                ),
+                autocast,
             )
             loss = (loss + second) / 2
         self._apply(loss)

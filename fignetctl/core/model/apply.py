@@ -12,7 +12,12 @@ import numpy as np
 
 from fignetctl.core.model.checkpoint import BUNDLED, DEFAULT_BUNDLED, bundled_model_path, load_checkpoint
 from fignetctl.core.model.rollout import RolloutError, guards_for, rollout
-from fignetctl.core.model.scene_data import EVALUATION_STATIC_REACH, MIN_FACES, scene_from_trajectory
+from fignetctl.core.model.scene_data import (
+    EVALUATION_STATIC_REACH,
+    MIN_FACES,
+    mesh_settings,
+    scene_from_trajectory,
+)
 from fignetctl.core.model.trained_ranges import outside_ranges
 from fignetctl.core.trajectory import TrajectoryFile
 from fignetctl.errors import FignetError, SettingError
@@ -203,16 +208,18 @@ def evaluate_trajectories(
     for model in (simulator,) if against is None else (simulator, against):
         check_comparable(model, data, where)
     warn_untrained_properties(simulator, [data.trajectories[key] for key in keys])
-    scenes = list(_scenes_of(data, keys, simulator.config).values())
+    scenes = _scenes_of(data, keys, simulator.config)
     guards = guards_for(data.dt, data.gravity, sleep, free_flight, keep_out)
     guarded = guards_for(data.dt, data.gravity, True, True, True) if with_guards else None
     with contextlib.ExitStack() as stack:
         references = physics_ceilings(data, stack) if ceilings else {}
         if against is not None:
-            references["against"] = functools.partial(
-                _model_rollout, against, _scenes_of(data, keys, against.config), guards
-            )
-        results = evaluate_scenes(simulator, data, scenes, on_scene, guards, guarded, references)
+            alike = mesh_settings(against.config) == mesh_settings(simulator.config)
+            against_scenes = scenes if alike else _scenes_of(data, keys, against.config)
+            references["against"] = functools.partial(_model_rollout, against, against_scenes, guards)
+        results = evaluate_scenes(
+            simulator, data, list(scenes.values()), on_scene, guards, guarded, references
+        )
     if not results:
         raise FignetError(f"{where}: no trajectory is long enough for a 50-step or 2-second horizon")
     return {

@@ -164,8 +164,14 @@ def subdivided_mesh(vertices, faces, max_edge):
     return np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
 
 
+def mesh_settings(config) -> tuple:
+    """The fields of a SimulatorConfig that `prepared_mesh` reads: two configs with the same
+    ones read a file's scenes alike."""
+    return config.max_faces_per_object, config.decimation, config.max_static_edge
+
+
 def prepared_mesh(vertices, faces, static, scale, config):
-    """A mesh as the simulator `config` sees it (unscaled, object frame)."""
+    """A mesh as the simulator `config` sees it (unscaled, object frame; `mesh_settings`)."""
     if not static:
         vertices, faces = decimated_mesh(vertices, faces, config.max_faces_per_object, config.decimation)
     if static and config.max_static_edge is not None:

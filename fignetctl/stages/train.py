@@ -133,10 +133,11 @@ class Settings:
     )
     unroll: int = setting(
         1,
-        "Steps the loss follows the model through: 1, or 2 (its answer for the next frame is also "
-        "the start of a second step, scored too; velocity state; docs/training-record.md).",
+        "Steps the loss follows the model through: 1, or n up to 8 (its answer for the next frame "
+        "is also the start of a second step, scored too, and so on; velocity state; "
+        "docs/training-record.md).",
         low=1,
-        high=2,
+        high=8,
     )
     velocity_weight: float = setting(
         1.0,

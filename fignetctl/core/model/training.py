@@ -4,8 +4,8 @@ Each step draws `batch_size` examples (a trajectory and a frame t with t−1 and
 it), jitters the pose of every dynamic object at t (noise.py), builds each graph, and
 regresses the normalized accelerations of the dynamic mesh nodes with an MSE loss (with
 `pushforward`, that many of them take frame t from the simulator's own prediction instead, or
-from a fixed model's with `pushforward_model`; with `unroll` 2, each example's answer also
-starts a second step that is scored too, unroll.py; with
+from a fixed model's with `pushforward_model`; with `unroll` n ≥ 2, each example's answer also
+starts a second step that is scored too, and so on for n steps, unroll.py; with
 `frame_sampling` 'motion', impact frames are drawn more often and weighted less).
 Adam with a learning rate decaying exponentially from `learning_rate_initial` to
 `learning_rate_final`.
@@ -54,7 +54,7 @@ from fignetctl.core.model.simulator import (
     free_motion_of,
 )
 from fignetctl.core.model.trained_ranges import property_ranges, ranges_to_json
-from fignetctl.core.model.unroll import batch_second_steps, check_unrollable, second_step, second_step_loss
+from fignetctl.core.model.unroll import batch_later_steps, check_unrollable, later_step, later_step_loss
 from fignetctl.core.provenance import INPUTS_KEY, file_sha256, stamp
 from fignetctl.core.trajectory import read_trajectories
 from fignetctl.core.transforms import quat_conjugate, quat_multiply, quat_to_rotation_vector
@@ -92,9 +92,10 @@ class TrainingSettings:
     loss: str = "mse"
     """'mse' (the paper) or 'huber' on the normalized accelerations."""
     unroll: int = 1
-    """Steps the loss follows the simulator through: 1 (the paper's one-step loss), or 2: each
-    example's answer for t+1 is also the state of a second step, scored against t+2, whose
-    gradient reaches the first answer (unroll.py); the loss is the two steps' mean."""
+    """Steps the loss follows the simulator through: 1 (the paper's one-step loss), or n ≥ 2:
+    each example's answer for t+1 is also the state of a second step, scored against t+2, and
+    so on to t+n, each step's gradient reaching every earlier answer (unroll.py); the loss is
+    the steps' mean. An example near the end of its recording takes the steps it has."""
     velocity_weight: float = 1.0
     """A velocity state's loss weight of the velocity columns a_u against the position columns
     a_x (1: equal). An error in u_{t+1} moves every later frame of a rollout, one in x_{t+1}
@@ -475,15 +476,15 @@ class TrainingBatches(torch.utils.data.Dataset):
                 weight * row_weights(self.scenes[scene], frame, self.simulator_config, self.config)
             )
         weighted = self.config.frame_sampling != "uniform" or weighs_rows(self.config)
-        seconds = None
-        if self.config.unroll == 2:
-            seconds = [
-                second_step_of(
+        later = None
+        if self.config.unroll > 1:
+            later = [
+                later_steps_of(
                     self.simulator_config, self.scenes[scene], frame, example[0], weight, self.config
                 )
                 for (scene, frame, weight), example in zip(draws, examples, strict=True)
             ]
-        batch = batch_of(examples, weights if weighted else None, seconds)
+        batch = batch_of(examples, weights if weighted else None, later)
         if self.pushforward_simulator is not None:  # only with pushforward examples to start
             with torch_threads(1):  # as in a worker: the same sums, so the same batch in any process
                 own = pushforward_examples(
@@ -535,11 +536,11 @@ def row_weights(scene, frame, simulator_config, config: TrainingSettings):
     )
 
 
-def batch_of(examples, weights=None, seconds=None) -> dict:
+def batch_of(examples, weights=None, later=None) -> dict:
     """{"graph": the batched raw graph, "rows": its dynamic vertex nodes, "targets": their raw
     targets, with `weights` (per example, a number or one per dynamic vertex) "weights":
-    each row's loss weight, and with `seconds` (per example, a unroll.SecondStep or None)
-    "second": the batch's SecondStep}."""
+    each row's loss weight, and with `later` (per example, the list of its unroll.LaterSteps)
+    "later": the batch's LaterSteps, one per step after the first that some example has}."""
     batch = {
         "graph": batch_graphs([e[0].graph for e in examples]),
         "rows": dynamic_rows([e[0] for e in examples]),
@@ -552,24 +553,22 @@ def batch_of(examples, weights=None, seconds=None) -> dict:
                 for e, w in zip(examples, weights, strict=True)
             ]
         )
-    if seconds is not None and any(second is not None for second in seconds):
-        starts = np.cumsum([0] + [len(e[1]) for e in examples[:-1]])
-        kept = [(second, start) for second, start in zip(seconds, starts, strict=True) if second is not None]
-        batch["second"] = batch_second_steps([k[0] for k in kept], [k[1] for k in kept])
+    if later is not None:
+        batch["later"] = []
+        chains, sizes = list(later), [len(e[1]) for e in examples]
+        for k in range(max(map(len, chains), default=0)):
+            starts = np.cumsum([0] + sizes[:-1])
+            kept = [(chain, start) for chain, start in zip(chains, starts, strict=True) if len(chain) > k]
+            batch["later"].append(batch_later_steps([c[k] for c, _ in kept], [s for _, s in kept]))
+            chains, sizes = [c for c, _ in kept], [len(c[k].first) for c, _ in kept]
     return batch
 
 
-def second_step_of(simulator_config, scene, frame, first_graph, weight, config: TrainingSettings):
-    """The unroll.SecondStep of the example at `frame` (its SceneGraph `first_graph`, its frame
-    sampling weight `weight`): the recording's step from t+1, or None where t+2 is past the end."""
-    if frame + 2 >= scene.positions.shape[0]:
-        return None
-    geometry, after = scene.geometry, frame + 1
-    window = slice(frame, frame + 3)
-    velocities = (scene.velocities[after] * scene.dt, scene.angular_velocities[after] * scene.dt)
-    scene_graph, targets = example_from_state(
-        simulator_config, scene, after, scene.positions[window], scene.quaternions[window], velocities, config
-    )
+def later_steps_of(simulator_config, scene, frame, first_graph, weight, config: TrainingSettings):
+    """The unroll.LaterSteps of the example at `frame` (its SceneGraph `first_graph`, its frame
+    sampling weight `weight`): the recording's steps from t+1 to t+`unroll`−1, as many of them
+    as the recording holds the frame after."""
+    geometry = scene.geometry
     start = np.zeros((len(geometry.dynamic_vertices), 3))
     if config.target_keeps_noise:
         recorded_now = geometry.world_vertices(
@@ -578,16 +577,31 @@ def second_step_of(simulator_config, scene, frame, first_graph, weight, config: 
         start = (1.0 - config.position_noise_undone) * (
             first_graph.dynamic_vertex_positions[1] - recorded_now
         )
-    weights = weight * row_weights(scene, after, simulator_config, config)
-    return second_step(
-        scene_graph,
-        targets.numpy(),
-        geometry,
-        scene.positions[after],
-        start,
-        weights,
-        simulator_config.graph.max_vertex_offset,
-    )
+    steps = []
+    for now in range(frame + 1, min(frame + config.unroll, scene.positions.shape[0] - 1)):
+        window = slice(now - 1, now + 2)
+        velocities = (scene.velocities[now] * scene.dt, scene.angular_velocities[now] * scene.dt)
+        scene_graph, targets = example_from_state(
+            simulator_config,
+            scene,
+            now,
+            scene.positions[window],
+            scene.quaternions[window],
+            velocities,
+            config,
+        )
+        steps.append(
+            later_step(
+                scene_graph,
+                targets.numpy(),
+                geometry,
+                scene.positions[now],
+                start,
+                weight * row_weights(scene, now, simulator_config, config),
+                simulator_config.graph.max_vertex_offset,
+            )
+        )
+    return steps
 
 
 def joined(first: dict, second: dict) -> dict:
@@ -705,16 +719,18 @@ class Trainer:
         weights = batch.get("weights")
         weights = None if weights is None else weights.to(self.device)
         loss = regression_loss(predictions.float(), normalized_targets, self.config, weights)
-        if "second" in batch:
-            second = second_step_loss(
+        losses, predictions, targets = [loss], predictions.float(), batch["targets"].to(self.device)
+        for step in batch.get("later", []):
+            later, predictions, targets = later_step_loss(
                 self.simulator,
-                predictions.float(),
-                batch["targets"].to(self.device),
-                batch["second"].to(self.device),
+                predictions,
+                targets,
+                step.to(self.device),
                 functools.partial(regression_loss, config=self.config),
                 autocast,
             )
-            loss = (loss + second) / 2
+            losses.append(later)
+        loss = torch.stack(losses).mean()
         self._apply(loss)
         return float(loss.detach())
 
@@ -980,16 +996,16 @@ def make_trainer(
                 "the added blocks' learning rate scale applies to processor blocks added to a trained "
                 "model: give `init_from` a model of fewer blocks than `message_passing_steps`"
             )
-    if training_config.unroll not in (1, 2):
-        raise FignetError(f"unroll = {training_config.unroll}: the loss follows 1 or 2 steps")
-    if training_config.unroll == 2:
+    if training_config.unroll < 1:
+        raise FignetError(f"unroll = {training_config.unroll}: the loss follows at least 1 step")
+    if training_config.unroll > 1:
         check_unrollable(simulator.config)
         if distributed.world_size() > 1:
-            raise FignetError("a two-step loss runs in one process; train it without torchrun")
+            raise FignetError("a loss through several steps runs in one process; train it without torchrun")
         if training_config.pushforward:
             raise FignetError(
-                "a two-step loss already starts its second step from the model's own answer; "
-                "train it without pushforward examples"
+                "a loss through several steps already starts each later step from the model's own "
+                "answer; train it without pushforward examples"
             )
     if training_config.velocity_weight != 1.0 and not simulator.config.uses_velocities:
         raise FignetError("a velocity weight needs a velocity-state model, whose output has velocity columns")

@@ -1,32 +1,34 @@
-"""A loss through two steps of the simulator (`TrainingSettings.unroll` = 2).
+"""A loss through several steps of the simulator (`TrainingSettings.unroll` = n ≥ 2).
 
 The one-step loss asks for frame t+1 from the recording's frame t. A rollout then starts
 each step from its own last answer, and an error in the velocity it gave moves every later
-frame. With two steps, the network's answer for t+1 becomes the state of a second step whose
-answer for t+2 is scored too, and the gradient of that second score reaches the first
-answer through the state it made.
+frame. With n steps, the network's answer for t+1 becomes the state of a second step whose
+answer for t+2 is scored too, that answer the state of a third, and so on to t+n; the
+gradient of each later score reaches every earlier answer through the states they made.
 
-Graph building is numpy and not differentiable, so the second step's graph is the recording's
-graph of frame t+1 (built by the workers like any other example, without noise) and the
-first step's answer enters it as a deviation from the recording:
+Graph building is numpy and not differentiable, so step k's graph is the recording's graph of
+frame t+k−1 (built by the workers like any other example, without noise) and the previous
+step's answer enters it as a deviation from the recording:
 
-- the first answer's error, per dynamic vertex (its position less the recording's, its
+- the previous answer's error, per dynamic vertex (its position less the recording's, its
   velocity less the recording's), is projected onto a rigid motion of each object, as the
   simulator's rollout projects its answers (`rigid_projection`: the least-squares rigid field
-  about the recording's pose at t+1, which for the few centimetres of one step's error is the
+  about the recording's pose at t+k−1, which for the few centimetres of a step's error is the
   rollout's shape matching to first order);
-- every feature of the second graph that a dynamic node's position or velocity enters is
+- every feature of the step's graph that a dynamic node's position or velocity enters is
   shifted by that motion (`deviated_graph`): node velocities, mesh–object offsets, and the
   face–face edges' closest points (kept at their barycentric coordinates on each face),
   vertex offsets and normals; static nodes do not move. A vertex's velocity moves by the
   velocity error alone: that an object turned by θ moves its vertices a little differently
   with the same spin ω (by ω × (θ × r)) is left out;
-- the second step's targets are the recording's t+2 less the first answer's deviation (with
-  the part of frame t's noise the first target keeps, `TrainingSettings.target_keeps_noise`,
-  kept by the second one too).
+- the step's targets are the recording's t+k less the previous answer's deviation. The part
+  of frame t's noise the first target keeps (`TrainingSettings.target_keeps_noise`) is kept
+  by every later target too, carried as the same vector per vertex. A step's error against
+  its own (shifted) targets is then the deviation of its answer from the recording, which
+  the next step takes.
 
 The face pairs are the recording's: a pair the deviation brings inside the collision radius
-(or takes out of it) is not added (or removed). A zero deviation gives the second graph's
+(or takes out of it) is not added (or removed). A zero deviation gives the step's graph
 features exactly (tests/core/model/test_unroll.py).
 """
 
@@ -43,20 +45,20 @@ from fignetctl.errors import FignetError
 
 
 @dataclasses.dataclass
-class SecondStep:
-    """What the second step of one example (or a batch of them) needs beside its graph.
+class LaterStep:
+    """What a later step (k ≥ 2) of one example (or a batch of them) needs beside its graph.
 
-    graph : the recording's raw graph of frame t+1 (N nodes)
-    first : (Vd,) rows of the first step's predictions (and targets) that are this step's
+    graph : the recording's raw graph of frame t+k−1 (N nodes)
+    first : (Vd,) rows of the previous step's predictions (and targets) that are this step's
         dynamic vertices, in the same order
     rows : (Vd,) the dynamic vertex nodes of `graph`
     object_rows : (Od,) the object nodes of `graph`, one per dynamic object
     vertex_object : (Vd,) the object (0 .. Od−1) of each dynamic vertex
-    offsets : (Vd, 3) each dynamic vertex less its object's centre, at t+1
+    offsets : (Vd, 3) each dynamic vertex less its object's centre, at t+k−1
     inverse_normal : (Od, 6, 6) the pseudo-inverse of Σ Jᵀ J, J = [1, −[r]×], per object
     start : (Vd, 3) the first step's target position less the recording's at t+1 (the part of
-        frame t's noise the target keeps)
-    targets : (Vd, 6) the recording's raw targets of the step t+1 -> t+2
+        frame t's noise the targets keep)
+    targets : (Vd, 6) the recording's raw targets of the step t+k−1 -> t+k
     weights : (Vd,) loss weight of each row
     sender_weights, receiver_weights : (E, 3) barycentric coordinates of each face–face edge's
         closest points on its (canonically ordered) faces
@@ -87,29 +89,32 @@ class SecondStep:
     receiver_edges: torch.Tensor
     normal_signs: torch.Tensor
 
-    def to(self, device) -> SecondStep:
+    def to(self, device) -> LaterStep:
         moved = {
             field.name: getattr(self, field.name).to(device)
             for field in dataclasses.fields(self)
             if field.name != "graph"
         }
-        return SecondStep(graph=self.graph.to(device), **moved)
+        return LaterStep(graph=self.graph.to(device), **moved)
 
 
 def check_unrollable(simulator_config) -> None:
-    """Refuse models whose second-step features `deviated_graph` does not shift."""
+    """Refuse models whose later-step features `deviated_graph` does not shift."""
     if not simulator_config.uses_velocities:
-        raise FignetError("a two-step loss needs a velocity-state model, which carries its own velocities")
+        raise FignetError(
+            "a loss through several steps needs a velocity-state model, which carries its own velocities"
+        )
     if simulator_config.free_motion or simulator_config.graph.contact_velocity:
         raise FignetError(
-            "a two-step loss does not follow the free-motion or contact-velocity inputs; train without them"
+            "a loss through several steps does not follow the free-motion or contact-velocity inputs; "
+            "train without them"
         )
 
 
-def second_step(scene_graph, targets, geometry, positions, start, weights, max_vertex_offset) -> SecondStep:
-    """The SecondStep of one example from the recording's `scene_graph` of frame t+1 and its
-    raw `targets`; positions (O, 3) the centres at t+1; start (Vd, 3) and weights (a number or
-    (Vd,)) as SecondStep's; `max_vertex_offset` the graph's (GraphConfig; None: no clamp)."""
+def later_step(scene_graph, targets, geometry, positions, start, weights, max_vertex_offset) -> LaterStep:
+    """The LaterStep of one example from the recording's `scene_graph` of frame t+k−1 and its
+    raw `targets`; positions (O, 3) the centres at t+k−1; start (Vd, 3) and weights (a number or
+    (Vd,)) as LaterStep's; `max_vertex_offset` the graph's (GraphConfig; None: no clamp)."""
     nodes = scene_graph.node_positions[1]
     num_dynamic = scene_graph.num_dynamic_vertex_nodes
     dynamic_objects = np.flatnonzero(~geometry.static)
@@ -130,7 +135,7 @@ def second_step(scene_graph, targets, geometry, positions, start, weights, max_v
     def tensor(values, dtype=torch.float32):
         return torch.as_tensor(np.array(values), dtype=dtype)
 
-    return SecondStep(
+    return LaterStep(
         graph=scene_graph.graph,
         first=torch.arange(num_dynamic),
         rows=torch.arange(num_dynamic),
@@ -183,9 +188,9 @@ def _inverse_normal_matrices(offsets, vertex_object, count):
     return np.linalg.pinv(normal, hermitian=True)
 
 
-def batch_second_steps(steps, first_offsets) -> SecondStep:
-    """The SecondSteps of a batch's examples as one (graphs batched, indices offset);
-    `first_offsets`: where each example's rows start in the first step's predictions."""
+def batch_later_steps(steps, first_offsets) -> LaterStep:
+    """The LaterSteps of a batch's examples as one (graphs batched, indices offset);
+    `first_offsets`: where each example's rows start in the previous step's predictions."""
     node_offsets = np.cumsum([0] + [s.graph.num_nodes for s in steps[:-1]])
     object_offsets = np.cumsum([0] + [len(s.object_rows) for s in steps[:-1]])
 
@@ -195,7 +200,7 @@ def batch_second_steps(steps, first_offsets) -> SecondStep:
             parts = [p + int(o) for p, o in zip(parts, offsets, strict=True)]
         return torch.cat(parts)
 
-    return SecondStep(
+    return LaterStep(
         graph=batch_graphs([s.graph for s in steps]),
         first=joined("first", first_offsets),
         rows=joined("rows", node_offsets),
@@ -233,8 +238,8 @@ def rigid_projection(deviation, vertex_object, offsets, inverse_normal):
     return linear[vertex_object] + torch.linalg.cross(angular[vertex_object], offsets, dim=1), linear
 
 
-def deviated_graph(step: SecondStep, position_shift, velocity_shift) -> MultiGraph:
-    """The second step's raw graph with its nodes moved by `position_shift` and their velocity
+def deviated_graph(step: LaterStep, position_shift, velocity_shift) -> MultiGraph:
+    """The step's raw graph with its nodes moved by `position_shift` and their velocity
     changed by `velocity_shift` ((N, 3) each, per step, zero on static nodes)."""
     graph = step.graph
     nodes = graph.node_features
@@ -254,10 +259,12 @@ def deviated_graph(step: SecondStep, position_shift, velocity_shift) -> MultiGra
     return MultiGraph(nodes + torch.cat([velocity_shift, pad], dim=1), edge_sets)
 
 
-def _face_face_features(step: SecondStep, edge_set: EdgeSet, shift):
+def _face_face_features(step: LaterStep, edge_set: EdgeSet, shift):
     """The 34 face–face columns (scene_graph.face_face_features) of faces moved by `shift`."""
     if edge_set.features.shape[1] != 34:
-        raise FignetError("a two-step loss does not follow the contact-velocity inputs; train without them")
+        raise FignetError(
+            "a loss through several steps does not follow the contact-velocity inputs; train without them"
+        )
     sender_shift, receiver_shift = shift[edge_set.senders], shift[edge_set.receivers]  # (E, 3, 3)
     sender_point = torch.einsum("ek,ekd->ed", step.sender_weights, sender_shift)
     receiver_point = torch.einsum("ek,ekd->ed", step.receiver_weights, receiver_shift)
@@ -300,24 +307,25 @@ def _norm(vectors):
     return torch.where(positive, torch.sqrt(torch.where(positive, squares, torch.ones_like(squares))), 0.0)
 
 
-def second_step_loss(simulator, first_predictions, first_targets, step: SecondStep, loss_of, autocast):
-    """The loss of the second step, given the first step's normalized predictions and raw
-    targets (rows of the batch); `loss_of(predictions, targets, weights=)` the regression loss,
-    `autocast` a context for the network's pass."""
-    graph, targets = second_step_inputs(simulator, first_predictions, first_targets, step)
+def later_step_loss(simulator, previous_predictions, previous_targets, step: LaterStep, loss_of, autocast):
+    """The loss of a later step, given the previous step's normalized predictions and raw
+    targets; `loss_of(predictions, targets, weights=)` the regression loss, `autocast` a context
+    for the network's pass. Returns the loss, and the step's normalized predictions (float) and
+    raw targets, which the step after it takes."""
+    graph, targets = later_step_inputs(simulator, previous_predictions, previous_targets, step)
     with autocast():
-        predictions = simulator(graph, accumulate=False)[step.rows]
+        predictions = simulator(graph, accumulate=False)[step.rows].float()
     normalized = simulator.normalized_targets(targets, accumulate=False)
-    return loss_of(predictions.float(), normalized, weights=step.weights)
+    return loss_of(predictions, normalized, weights=step.weights), predictions, targets
 
 
-def second_step_inputs(simulator, first_predictions, first_targets, step: SecondStep):
-    """The second step's raw graph and raw targets (Vd, 6), moved by the first step's error.
+def later_step_inputs(simulator, previous_predictions, previous_targets, step: LaterStep):
+    """The step's raw graph and raw targets (Vd, 6), moved by the previous step's error.
 
-    The first step's target keeps part of frame t's noise (`start`); the second step starts
+    The first step's target keeps part of frame t's noise (`start`); each later step starts
     from it and its target keeps it too, so that only the network's own error is carried."""
-    raw = simulator.acceleration_normalizer.inverse(first_predictions[step.first])
-    error = raw - first_targets[step.first]
+    raw = simulator.acceleration_normalizer.inverse(previous_predictions[step.first])
+    error = raw - previous_targets[step.first]
 
     def projected(deviation):
         return rigid_projection(deviation, step.vertex_object, step.offsets, step.inverse_normal)

@@ -3,6 +3,7 @@ again from moved poses, its rigid projection against the simulator's least-squar
 training with it."""
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -15,12 +16,13 @@ from fignetctl.core.model.scene_graph import FACE_FACE, build_scene_graph
 from fignetctl.core.model.simulator import LearnedSimulator, rigid_velocities_from_vertices
 from fignetctl.core.model.training import (
     TrainingSettings,
+    batch_of,
+    later_steps_of,
     make_trainer,
-    second_step_of,
     simulator_config_for,
     training_example,
 )
-from fignetctl.core.model.unroll import deviated_graph, rigid_projection, second_step_inputs
+from fignetctl.core.model.unroll import deviated_graph, later_step_inputs, rigid_projection
 from fignetctl.core.trajectory import write_trajectories
 from fignetctl.core.transforms import quat_from_rotation_vector, quat_multiply
 from fignetctl.errors import FignetError
@@ -65,7 +67,7 @@ def test_no_deviation_gives_the_recorded_graph_of_the_next_frame(movi_file, conf
     scene = scenes_from_file(movi_file, config)[0]
     frame = _busiest_frame(scene, config) - 1
     first, _ = training_example(config, scene, frame, torch.Generator().manual_seed(0), TrainingSettings())
-    second = second_step_of(config, scene, frame, first, 1.0, TrainingSettings())
+    (second,) = later_steps_of(config, scene, frame, first, 1.0, TrainingSettings(unroll=2))
     assert second.graph.edge_sets[FACE_FACE].num_edges > 100
     nodes = second.graph.num_nodes
     moved = deviated_graph(second, torch.zeros(nodes, 3), torch.zeros(nodes, 3))
@@ -95,7 +97,7 @@ def test_a_small_rigid_deviation_moves_the_features_as_building_the_graph_again_
     t = _busiest_frame(scene, config)
     clean = TrainingSettings(noise_translation_std=0.0, noise_rotation_std=0.0)
     first, _ = training_example(config, scene, t - 1, torch.Generator().manual_seed(0), clean)
-    second = second_step_of(config, scene, t - 1, first, 1.0, clean)
+    (second,) = later_steps_of(config, scene, t - 1, first, 1.0, dataclasses.replace(clean, unroll=2))
     faces = second.graph.edge_sets[FACE_FACE]
     dynamic_objects = np.flatnonzero(~scene.geometry.static)
     obj_local = int(second.vertex_object[faces.receivers[0, 0]])  # an object in contact
@@ -194,20 +196,20 @@ def test_the_second_targets_take_the_first_answers_error_and_keep_the_noise(movi
     frame = _busiest_frame(scene, config) - 1
     settings = TrainingSettings()
     first, targets = training_example(config, scene, frame, torch.Generator().manual_seed(1), settings)
-    second = second_step_of(config, scene, frame, first, 1.0, settings)
+    (second,) = later_steps_of(config, scene, frame, first, 1.0, dataclasses.replace(settings, unroll=2))
     assert second.start.abs().max() > 1e-3  # frame t's noise, which the first target keeps
     simulator = LearnedSimulator(config)
     with torch.no_grad():
         simulator(first.graph, accumulate=True)
         simulator.normalized_targets(targets, accumulate=True)
     exact = simulator.normalized_targets(targets, accumulate=False)
-    graph, second_targets = second_step_inputs(simulator, exact, targets, second)
+    graph, second_targets = later_step_inputs(simulator, exact, targets, second)
     torch.testing.assert_close(second_targets, second.targets, atol=1e-6, rtol=0)
 
     error = torch.zeros_like(targets)
     error[:, 3:] = torch.tensor([0.004, -0.002, 0.001])  # every vertex, so every object: rigid
     off = simulator.normalized_targets(targets + error, accumulate=False).requires_grad_()
-    graph, shifted = second_step_inputs(simulator, off, targets, second)
+    graph, shifted = later_step_inputs(simulator, off, targets, second)
     change = (shifted - second.targets).detach()
     expected = torch.cat([-error[:, 3:], -error[:, 3:]], dim=1)
     torch.testing.assert_close(change, expected, atol=1e-6, rtol=0)
@@ -216,12 +218,70 @@ def test_the_second_targets_take_the_first_answers_error_and_keep_the_noise(movi
     assert off.grad.abs().sum() > 0
 
 
-def test_training_with_two_steps_fits_a_spinning_box_in_free_fall(tmp_path):
+def test_a_third_step_takes_the_second_answers_error(movi_file):
+    """With three steps, exact answers leave the recording's third targets; a second answer off
+    by a rigid velocity error e asks the third step for −e more in both columns, and the third
+    step's loss has a gradient on the first answer, through the second step's graph."""
+    config = STAR
+    scene = scenes_from_file(movi_file, config)[0]
+    frame = _busiest_frame(scene, config) - 1
+    settings = TrainingSettings(unroll=3)
+    first, targets = training_example(config, scene, frame, torch.Generator().manual_seed(1), settings)
+    second, third = later_steps_of(config, scene, frame, first, 1.0, settings)
+    torch.testing.assert_close(third.start, second.start, rtol=0, atol=0)  # the kept noise, carried
+    simulator = LearnedSimulator(config)
+    with torch.no_grad():
+        simulator(first.graph, accumulate=True)
+        simulator.normalized_targets(targets, accumulate=True)
+    normalized = functools.partial(simulator.normalized_targets, accumulate=False)
+    _, second_targets = later_step_inputs(simulator, normalized(targets), targets, second)
+    _, third_targets = later_step_inputs(simulator, normalized(second_targets), second_targets, third)
+    torch.testing.assert_close(third_targets, third.targets, atol=1e-6, rtol=0)
+
+    error = torch.zeros_like(second_targets)
+    error[:, 3:] = torch.tensor([-0.003, 0.001, 0.002])
+    _, shifted = later_step_inputs(simulator, normalized(second_targets + error), second_targets, third)
+    torch.testing.assert_close(shifted - third.targets, -error[:, [3, 4, 5, 3, 4, 5]], atol=1e-6, rtol=0)
+
+    answer = normalized(targets).requires_grad_()
+    graph, second_targets = later_step_inputs(simulator, answer, targets, second)
+    second_answer = simulator(graph)[second.rows]
+    graph, third_targets = later_step_inputs(simulator, second_answer, second_targets, third)
+    loss = ((simulator(graph)[third.rows] - normalized(third_targets)) ** 2).mean()
+    loss.backward()
+    assert answer.grad.abs().sum() > 0
+
+
+def test_examples_near_the_end_of_their_recording_take_the_steps_it_has(movi_file):
+    """Later steps stop where the recording does, and a batch's step k reads the rows of its
+    step k−1 that belong to the examples that have both."""
+    config = STAR
+    scene = scenes_from_file(movi_file, config)[0]
+    last = scene.positions.shape[0] - 1
+    settings = TrainingSettings(unroll=3)
+    examples, chains = [], []
+    for frame in (last - 2, 10, last - 1, 11):
+        example = training_example(config, scene, frame, torch.Generator().manual_seed(frame), settings)
+        examples.append(example)
+        chains.append(later_steps_of(config, scene, frame, example[0], 1.0, settings))
+    assert [len(chain) for chain in chains] == [1, 2, 0, 2]
+    batch = batch_of(examples, later=chains)
+    rows = len(examples[0][1])  # every example of one scene has the same dynamic vertices
+    second, third = batch["later"]
+    torch.testing.assert_close(second.first, torch.cat([torch.arange(rows) + rows * k for k in (0, 1, 3)]))
+    torch.testing.assert_close(third.first, torch.cat([torch.arange(rows) + rows * k for k in (1, 2)]))
+    torch.testing.assert_close(third.targets, torch.cat([chains[1][1].targets, chains[3][1].targets]))
+    assert "later" not in batch_of(examples)
+    assert batch_of(examples[2:3], later=chains[2:3])["later"] == []
+
+
+@pytest.mark.parametrize("unroll", [2, 3])
+def test_training_through_several_steps_fits_a_spinning_box_in_free_fall(tmp_path, unroll):
     data = write_trajectories(tmp_path / "drop.h5", box_drop_file(frames=12))
     settings = TrainingSettings(
         steps=200,
         batch_size=2,
-        unroll=2,
+        unroll=unroll,
         learning_rate_initial=3e-3,
         learning_rate_final=1e-3,
         normalizer_accumulation_steps=5,
@@ -234,8 +294,9 @@ def test_training_with_two_steps_fits_a_spinning_box_in_free_fall(tmp_path):
     assert np.mean(losses[-20:]) < np.mean(losses[:20]) / 50
 
 
-def test_training_with_two_steps_resumes_exactly(movi_file, tmp_path):
-    settings = TrainingSettings(steps=8, batch_size=2, unroll=2, checkpoint_every=4)
+@pytest.mark.parametrize("unroll", [2, 3])
+def test_training_through_several_steps_resumes_exactly(movi_file, tmp_path, unroll):
+    settings = TrainingSettings(steps=8, batch_size=2, unroll=unroll, checkpoint_every=4)
     straight = make_trainer(movi_file, STAR, settings)
     straight.run()
     interrupted = make_trainer(movi_file, STAR, settings)

@@ -285,10 +285,7 @@ def example_from_state(simulator_config, scene, frame, positions, quaternions, v
     scene_graph = build_scene_graph(geometry, positions, quaternions, simulator_config.graph, velocities)
     previous, now, after = scene_graph.dynamic_vertex_positions
     if config.target_keeps_noise:
-        recorded_now = geometry.world_vertices(
-            scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
-        )
-        after = after + (1.0 - config.position_noise_undone) * (now - recorded_now)
+        after = after + kept_noise(scene, frame, now, config)
     next_velocities = None
     if velocities is not None:
         next_velocities = rigid_point_velocities(
@@ -564,6 +561,17 @@ def batch_of(examples, weights=None, later=None) -> dict:
     return batch
 
 
+def kept_noise(scene, frame, now, config: TrainingSettings):
+    """The part of frame t's difference from the scene's that the target keeps: the dynamic
+    vertices `now` (Vd, 3) less the recording's at `frame`, less the `position_noise_undone`
+    fraction of it."""
+    geometry = scene.geometry
+    recorded_now = geometry.world_vertices(
+        scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
+    )
+    return (1.0 - config.position_noise_undone) * (now - recorded_now)
+
+
 def later_steps_of(simulator_config, scene, frame, first_graph, weight, config: TrainingSettings):
     """The unroll.LaterSteps of the example at `frame` (its SceneGraph `first_graph`, its frame
     sampling weight `weight`): the recording's steps from t+1 to t+`unroll`−1, as many of them
@@ -571,12 +579,7 @@ def later_steps_of(simulator_config, scene, frame, first_graph, weight, config: 
     geometry = scene.geometry
     start = np.zeros((len(geometry.dynamic_vertices), 3))
     if config.target_keeps_noise:
-        recorded_now = geometry.world_vertices(
-            scene.positions[frame], scene.quaternions[frame], geometry.dynamic_vertices
-        )
-        start = (1.0 - config.position_noise_undone) * (
-            first_graph.dynamic_vertex_positions[1] - recorded_now
-        )
+        start = kept_noise(scene, frame, first_graph.dynamic_vertex_positions[1], config)
     steps = []
     for now in range(frame + 1, min(frame + config.unroll, scene.positions.shape[0] - 1)):
         window = slice(now - 1, now + 2)

@@ -116,9 +116,9 @@ two-frame-checkpoints: $(DATA)/fignet-star-movi-b.pt $(DATA)/fignet-movi-b.pt
 	$(BIN)/python scripts/export_model.py $(DATA)/fignet-star-movi-b.pt $(TWO_FRAME)/fignet-star-movi-b.pt
 	$(BIN)/python scripts/export_model.py $(DATA)/fignet-movi-b.pt $(TWO_FRAME)/fignet-movi-b.pt
 
-# The bundled models, reproduced from scratch: fifteen stages of training, each from the one before
+# The bundled models, reproduced from scratch: sixteen stages of training, each from the one before
 # (scripts/velocity_lineage.py; docs/simulator.md, "The bundled models' lineage"), then both
-# exported with the four turns about gravity `rollout` averages them over. About 20 hours on a
+# exported with the four turns about gravity `rollout` averages them over. About 21 hours on a
 # 2-core CPU (its stage 13 uses a GPU where there is one); re-run to go on after an interruption.
 $(DATA)/movi-b-train-16k.h5: | setup
 	mkdir -p $(DATA)
@@ -126,7 +126,7 @@ $(DATA)/movi-b-train-16k.h5: | setup
 
 checkpoints: $(DATA)/movi-b-train.h5 $(DATA)/movi-b-train-4k.h5 $(DATA)/movi-b-train-16k.h5
 	$(BIN)/python scripts/velocity_lineage.py --data $(DATA) --out $(DATA)/lineage
-	$(BIN)/python scripts/export_model.py $(DATA)/lineage/rest-weight-100.pt fignetctl/assets/models/fignet-star-movi-b.pt --rotations 4
+	$(BIN)/python scripts/export_model.py $(DATA)/lineage/unroll-4-mean.pt fignetctl/assets/models/fignet-star-movi-b.pt --rotations 4
 	$(BIN)/python scripts/export_model.py $(DATA)/lineage/fignet-rest-weight-100.pt fignetctl/assets/models/fignet-movi-b.pt --rotations 4
 
 # The bundled models on the held-out set (with and without the guards; FIGNet* beside the

@@ -3,8 +3,9 @@ velocity-state FIGNet* and FIGNet from scratch, stage by stage, each stage from 
 one before (`train --init-from`), as docs/simulator.md ("The bundled models' lineage") lists
 them. A finished stage's model is kept as OUT/STAGE.pt and skipped when the script runs
 again; an interrupted stage goes on from its last checkpoint (`train --resume`). Two-seed
-stages run their seeds side by side, one per core, and average them (scripts/average_models.py);
-data-parallel stages run under torchrun on two processes. About 20 hours on a 2-core CPU.
+stages run their seeds side by side, one per core, and average them (scripts/average_models.py),
+as a stage with `mean_with` averages its run with an earlier stage's model; data-parallel
+stages run under torchrun on two processes. About 21 hours on a 2-core CPU.
 
 The data: DIR/movi-b-train.h5 (600 trajectories), DIR/movi-b-train-4k.h5 (4000) and
 DIR/movi-b-train-16k.h5 (16,000), as `make checkpoints` makes them. `--dry-run` prints the
@@ -44,6 +45,7 @@ class Stage:
     start: str | None = "previous"  # the stage whose model it starts from; None: from scratch
     model: str = "fignet-star"
     extra: tuple[str, ...] = ()
+    mean_with: str | None = None  # an earlier stage whose model is averaged with this one's run
 
 
 STAGES = [
@@ -61,10 +63,12 @@ STAGES = [
     Stage("stage-13", "1000", 400, 128, (25,), workers=None),
     Stage("stage-14", "4k", 700, 64, (26,), processes=2),
     Stage("rest-weight-100", "4k", 1000, 64, (31,), extra=("--rest-weight", "100")),
+    Stage("unroll-4-mean", "4k", 400, 64, (34,), extra=("--rest-weight", "100", "--unroll", "4"),
+          mean_with="rest-weight-100"),
     Stage("fignet-rest-weight-100", "4k", 1000, 64, (31,), start="stage-14", model="fignet",
           extra=("--rest-weight", "100")),
 ]  # fmt: skip
-BUNDLED = {"fignet-star-movi-b": "rest-weight-100", "fignet-movi-b": "fignet-rest-weight-100"}
+BUNDLED = {"fignet-star-movi-b": "unroll-4-mean", "fignet-movi-b": "fignet-rest-weight-100"}
 
 
 def model_path(out: Path, stage_name: str) -> Path:
@@ -105,15 +109,28 @@ def stage_runs(stage: Stage, data: Path, out: Path):
     return runs
 
 
+def stage_mean(stage: Stage, runs, out: Path):
+    """The `average_models.py` command that makes `stage`'s model from its runs (and the model
+    of the stage it names in `mean_with`, whose trained properties an older trainer may have
+    recorded differently: the run's are kept), or None where its one run is its model."""
+    sources = [run for _, run in runs] + ([model_path(out, stage.mean_with)] if stage.mean_with else [])
+    if len(sources) == 1:
+        return None
+    return average_command(
+        sources, model_path(out, stage.name), properties_from=1 if stage.mean_with else None
+    )
+
+
 def run_stage(stage: Stage, data: Path, out: Path, dry_run: bool) -> None:
     final = model_path(out, stage.name)
     runs = stage_runs(stage, data, out)
+    mean = stage_mean(stage, runs, out)
     one_thread = {**os.environ, "OMP_NUM_THREADS": "1"}  # the workers and the other seed take the rest
     if dry_run:
         for command, _ in runs:
             print(shlex.join(command))
-        if len(runs) > 1:
-            print(shlex.join(average_command([run for _, run in runs], final)))
+        if mean:
+            print(shlex.join(mean))
         return
     if final.exists():
         print(f"{final}: done")
@@ -124,15 +141,16 @@ def run_stage(stage: Stage, data: Path, out: Path, dry_run: bool) -> None:
         sys.exit(
             f"error: stage {stage.name} stopped (exit codes {codes}); run this script again to resume it"
         )
-    if len(runs) > 1:
-        subprocess.run(average_command([run for _, run in runs], final), check=True)
+    if mean:
+        subprocess.run(mean, check=True)
     else:
         shutil.copyfile(runs[0][1], final)
 
 
-def average_command(runs, destination):
+def average_command(sources, destination, properties_from=None):
     script = Path(__file__).with_name("average_models.py")
-    return [sys.executable, str(script), *map(str, runs), "-o", str(destination)]
+    chosen = [] if properties_from is None else ["--properties-from", str(properties_from)]
+    return [sys.executable, str(script), *chosen, *map(str, sources), "-o", str(destination)]
 
 
 def take_first_1000(data: Path, dry_run: bool) -> None:

@@ -93,28 +93,39 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
     for line in printed.splitlines():
         words = shlex.split(line)
         if words[1].endswith("average_models.py"):
-            averaged = {Path(run).with_name(Path(run).name.replace(".run.pt", ".pt")) for run in words[2:-2]}
-            finished = (finished - averaged) | {Path(words[-1])}
+            # the runs it averages, or a run and an earlier stage's model
+            sources = [word for word in words[2:-2] if word.endswith(".pt")]
+            assert {Path(source.replace(".run.pt", ".pt")) for source in sources} <= finished, line
+            runs = {
+                Path(source.replace(".run.pt", ".pt")) for source in sources if source.endswith(".run.pt")
+            }
+            finished = (finished - runs) | {Path(words[-1])}
         elif "train" in words and words[words.index("train") - 1].endswith("fignetctl"):
             arguments = words[words.index("train") + 1 :]
             values = train.make_context("train", arguments).params
             assert (Path(values["init_from"]) in finished) if trained else values["init_from"] is None, line
             trained[Path(values["output"])] = options.settings_from(stage.Settings, values)
             finished.add(Path(re.sub(r"\.run\.pt$", ".pt", values["output"])))
-    assert len(trained) == 17  # fifteen stages, two of them two seeds each
-    for name, final in exported.items():
-        settings = trained[final.with_name(final.stem + ".run.pt")]
-        config, training = stage.configs(settings)
-        bundled = load_model(name).config
-        assert dataclasses.replace(config, dt=bundled.dt, gravity=bundled.gravity) == bundled, name
-        recorded = json.loads(
-            read_checkpoint_payload(bundled_model_path(name))["provenance"]["training_config"]
-        )
-        # the last stage's own run, in the settings its trainer recorded (an older one recorded fewer)
-        # ("auto" precision is recorded as what it resolved to)
+    assert len(trained) == 18  # sixteen stages, two of them two seeds each
+
+    def recorded_by(training, recorded):
+        """Whether a run's settings are the ones a model file recorded for the run that made it
+        (an older trainer recorded fewer; "auto" precision is recorded as what it resolved to)."""
         made = {k: v for k, v in dataclasses.asdict(training).items() if k in recorded and k != "precision"}
         assert {"steps", "batch_size", "seed", "rest_weight", "frame_sampling"} <= made.keys()
-        assert made == {key: recorded[key] for key in made}, name
+        return made == {key: recorded[key] for key in made}
+
+    for name, final in exported.items():
+        config, training = stage.configs(trained[final.with_name(final.stem + ".run.pt")])
+        bundled = load_model(name).config
+        assert dataclasses.replace(config, dt=bundled.dt, gravity=bundled.gravity) == bundled, name
+        provenance = read_checkpoint_payload(bundled_model_path(name))["provenance"]
+        # a mean of models records each source's provenance
+        sources = provenance.get("averaged_from", [provenance])
+        recorded = [json.loads(source["training_config"]) for source in sources]
+        assert recorded_by(training, recorded[0]), name  # the last stage's own run
+        runs = [stage.configs(settings)[1] for settings in trained.values()]
+        assert all(any(recorded_by(run, other) for run in runs) for other in recorded[1:]), name
 
 
 def test_make_resumes_a_model_file_newer_than_its_data():

@@ -115,6 +115,7 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
         assert {"steps", "batch_size", "seed", "rest_weight", "frame_sampling"} <= made.keys()
         return made == {key: recorded[key] for key in made}
 
+    runs = [stage.configs(settings)[1] for settings in trained.values()]
     for name, final in exported.items():
         config, training = stage.configs(trained[final.with_name(final.stem + ".run.pt")])
         bundled = load_model(name).config
@@ -124,7 +125,6 @@ def test_make_checkpoints_trains_the_bundled_models_settings():
         sources = provenance.get("averaged_from", [provenance])
         recorded = [json.loads(source["training_config"]) for source in sources]
         assert recorded_by(training, recorded[0]), name  # the last stage's own run
-        runs = [stage.configs(settings)[1] for settings in trained.values()]
         assert all(any(recorded_by(run, other) for run in runs) for other in recorded[1:]), name
 
 
